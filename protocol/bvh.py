@@ -271,7 +271,8 @@ def _parse_motion(path: str | Path, body: str, line0: int, n_channels: int) -> t
         data_lines.pop()
     first = line0 + k + 2
     if len(data_lines) < n_frames:
-        raise BvhError(path, first + len(data_lines), f"truncated: header says {n_frames} frames, found {len(data_lines)}")
+        raise BvhError(path, first + len(data_lines),
+                       f"truncated: header says {n_frames} frames, found {len(data_lines)}")
     if len(data_lines) > n_frames:
         raise BvhError(path, first + n_frames, f"header says {n_frames} frames but more data follows")
     try:
@@ -293,7 +294,8 @@ def _parse_motion(path: str | Path, body: str, line0: int, n_channels: int) -> t
     return values.reshape(n_frames, n_channels), frame_time
 
 
-def _resolve_offset_mode(joints: list[BvhJoint], frames: NDArray[np.float64], mode: OffsetMode) -> Literal["add", "replace"]:
+def _resolve_offset_mode(joints: list[BvhJoint], frames: NDArray[np.float64],
+                         mode: OffsetMode) -> Literal["add", "replace"]:
     if mode in ("add", "replace"):
         return mode
     if mode != "auto":
@@ -399,7 +401,8 @@ def write_bvh(path: str | Path, poses: NDArray[np.float64], body: Body, fps: flo
                           f"{ind}}}"])
             return
         kind = "ROOT" if PARENTS[j] < 0 else "JOINT"
-        lines.extend([f"{ind}{kind} {JOINT_NAMES[j]}", f"{ind}{{", f"{ind}  OFFSET {off[0]:.6f} {off[1]:.6f} {off[2]:.6f}"])
+        lines.extend([f"{ind}{kind} {JOINT_NAMES[j]}", f"{ind}{{",
+                      f"{ind}  OFFSET {off[0]:.6f} {off[1]:.6f} {off[2]:.6f}"])
         rch = " ".join(f"{a}rotation" for a in _OUR_ORDER)
         if PARENTS[j] < 0:
             lines.append(f"{ind}  CHANNELS 6 Xposition Yposition Zposition {rch}")

@@ -59,7 +59,16 @@ from .rotations import (
     quat_to_matrix,
     rotvec_to_matrix,
 )
-from .skeleton import JOINT_INDEX, POSE_SIZE, ROT_JOINTS, Body, body_from_measurements, default_body, rest_pose, standing_pose
+from .skeleton import (
+    JOINT_INDEX,
+    POSE_SIZE,
+    ROT_JOINTS,
+    Body,
+    body_from_measurements,
+    default_body,
+    rest_pose,
+    standing_pose,
+)
 
 __all__ = ["EASINGS", "ScriptError", "load_script", "parse_script", "script_poses"]
 
@@ -230,7 +239,7 @@ def script_poses(script: Script, body: Body, fps: float | None = None,
         states_q.append(cur_q)
         states_r.append(np.array([cur_root[a] for a in _ROOT_KEYS]))
     times = np.array([k.t for k in script.keys])
-    n = int(math.floor(script.duration * rate + 1e-9)) + 1
+    n = math.floor(script.duration * rate + 1e-9) + 1
     t = np.arange(n) / rate
     n_keys = len(times)
     idx = np.searchsorted(times, t, side="right")  # number of keys at or before t

@@ -8,7 +8,7 @@ enforces them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import Final
 
 import numpy as np
@@ -22,15 +22,15 @@ __all__ = [
     "PoseFrame",
     "TrackerState",
     "TrackerStatus",
-    "body_info_from_body",
     "body_from_body_info",
+    "body_info_from_body",
 ]
 
 #: Version of every message type defined here. Bumped on any incompatible change.
 SCHEMA_VERSION: Final[int] = 1
 
 
-class TrackerState(str, Enum):
+class TrackerState(StrEnum):
     """Life cycle of a tracker (or replay publisher)."""
 
     STARTING = "starting"

@@ -14,7 +14,7 @@ from .kinematics import fk
 from .retarget import UNITS, artifact_mask, detect_armature, retarget, source_skeleton
 from .rotations import euler_to_matrix, matrix_to_quat, matrix_to_rotvec, quat_slerp, quat_to_matrix, rotvec_to_matrix
 from .skeleton import (
-    CAPSULES,
+    CAPSULE_INDEX,
     END_JOINTS,
     JOINT_INDEX,
     JOINT_NAMES,
@@ -107,7 +107,7 @@ def resample(motion: Motion, fps: float) -> Motion:
     if abs(fps - motion.fps) < 1e-9:
         return motion
     n_out = max(1, int(np.floor((motion.n_frames - 1) * fps / motion.fps + 1e-9)) + 1)
-    t = np.arange(n_out) * (motion.fps / fps)  # position in source frames
+    t = np.arange(n_out, dtype=np.float64) * float(motion.fps / fps)  # position in source frames
     poses = sample_poses(motion.poses, t)
     i0 = np.clip(np.floor(t).astype(int), 0, motion.n_frames - 1)
     i1 = np.clip(i0 + 1, 0, motion.n_frames - 1)
@@ -162,7 +162,7 @@ def ground(poses: NDArray[np.float64], body: Body, percentile: float = 5.0) -> N
     p = np.array(poses, dtype=np.float64, copy=True)
     joints = fk(p, body)
     feet = [JOINT_INDEX[n] for n in ("l_ankle", "l_toe", "r_ankle", "r_toe")]
-    foot_r = float(body.capsule_radii[[c[0] for c in CAPSULES].index("l_foot")].min())
+    foot_r = float(body.capsule_radii[CAPSULE_INDEX["l_foot"]].min())
     low = joints[:, feet, 1].min(axis=1) - foot_r
     p[:, 1] -= float(np.percentile(low, percentile))
     return p
@@ -232,12 +232,12 @@ def is_native(bvh: BvhFile) -> bool:
 def _native_motion(bvh: BvhFile, scale: float | None) -> Motion:
     names = [j.name for j in bvh.joints]
     offsets = np.zeros((len(JOINT_NAMES), 3))
-    for k, j in enumerate(bvh.joints):
-        offsets[JOINT_INDEX[j.name]] = j.offset
-        if j.end_site is not None:
-            child = [c for c, par in enumerate(PARENTS) if par == JOINT_INDEX[j.name] and JOINT_NAMES[c] in END_JOINTS]
-            if child:
-                offsets[child[0]] = j.end_site
+    for bj in bvh.joints:
+        offsets[JOINT_INDEX[bj.name]] = bj.offset
+        if bj.end_site is not None:
+            ends = [c for c, par in enumerate(PARENTS) if par == JOINT_INDEX[bj.name] and JOINT_NAMES[c] in END_JOINTS]
+            if ends:
+                offsets[ends[0]] = bj.end_site
     j = JOINT_INDEX
     leg_u = float(np.linalg.norm(offsets[j["l_knee"]]) + np.linalg.norm(offsets[j["l_ankle"]]))
     s = scale if scale is not None else next((u for _, u in UNITS if 0.6 <= leg_u * u <= 1.05), 0.85 / leg_u)

@@ -249,7 +249,7 @@ def source_skeleton(bvh: BvhFile, armature: Armature | None = None, scale: float
         if bj.end_site is not None and np.linalg.norm(bj.end_site) * scale > 1e-4:
             continue
         # continue the incoming bone: its direction in the parent's frame, turned by the joint's rotation
-        d = bj.offset / max(np.linalg.norm(bj.offset), 1e-12)
+        d = bj.offset / max(float(np.linalg.norm(bj.offset)), 1e-12)
         out[:, j[ours]] = pos[:, k] + frac * leg * np.einsum("fij,j->fi", rot[:, k], d)
     if root_translation_scale is None:
         pelvis_h = float(np.median(out[:, j["pelvis"], 1]))
@@ -268,7 +268,8 @@ def source_skeleton(bvh: BvhFile, armature: Armature | None = None, scale: float
     return SourceSkeleton(out, head_lat, leg, float(scale), float(root_translation_scale), arm.name)
 
 
-def _head_lateral(bvh: BvhFile, arm: Armature, rot: NDArray[np.float64], pos: NDArray[np.float64]) -> NDArray[np.float64]:
+def _head_lateral(bvh: BvhFile, arm: Armature, rot: NDArray[np.float64],
+                  pos: NDArray[np.float64]) -> NDArray[np.float64]:
     idx = {n: k for k, n in enumerate(bvh.names)}
     j = JOINT_INDEX
     lat = _unit(pos[:, j["l_shoulder"]] - pos[:, j["r_shoulder"]])
@@ -429,7 +430,6 @@ def artifact_mask(positions: NDArray[np.float64], fps: float, lead_frames: int =
     for t in range(min(lead_frames, f - 1)):
         if speed[t] > thr:
             start = t + 1
-    bad = np.flatnonzero(speed > glitch_speed)
-    for t in bad:
-        valid[max(t - 1, 0): t + 3] = False
+    for g in np.flatnonzero(speed > glitch_speed):
+        valid[max(int(g) - 1, 0): int(g) + 3] = False
     return start, valid

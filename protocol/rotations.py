@@ -103,14 +103,14 @@ def quat_to_matrix(q: ArrayLike) -> FloatArray:
     -------
     (..., 3, 3) float64
     """
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    qa: FloatArray = np.asarray(q, dtype=np.float64)
+    qa = qa / np.linalg.norm(qa, axis=-1, keepdims=True)
+    w, x, y, z = qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]
     return np.stack([
         1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
         2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], axis=-1).reshape((*q.shape[:-1], 3, 3))
+    ], axis=-1).reshape((*qa.shape[:-1], 3, 3))
 
 
 def matrix_to_rotvec(m: ArrayLike) -> FloatArray:

@@ -122,6 +122,7 @@ CAPSULES: Final[tuple[tuple[str, str, str, str], ...]] = (
     ("r_foot", "r_foot", "r_ankle", "r_toe"),
 )
 N_CAPSULES: Final[int] = len(CAPSULES)
+CAPSULE_INDEX: Final[dict[str, int]] = {c[0]: i for i, c in enumerate(CAPSULES)}
 CAPSULE_JOINTS: Final[NDArray[np.int64]] = np.array(
     [[JOINT_INDEX[a], JOINT_INDEX[b]] for _, _, a, b in CAPSULES], dtype=np.int64
 )
@@ -222,7 +223,7 @@ class Body:
         """Height of the pelvis above the floor when standing straight (feet flat), metres."""
         j = JOINT_INDEX
         toe_drop = -self.offsets[j["l_toe"], 1]
-        foot_r = self.capsule_radii[[c for c, (n, *_r) in enumerate(CAPSULES) if n == "l_foot"][0], 1]
+        foot_r = self.capsule_radii[CAPSULE_INDEX["l_foot"], 1]
         return float(-self.offsets[j["l_knee"], 1] - self.offsets[j["l_ankle"], 1] + toe_drop + foot_r)
 
 

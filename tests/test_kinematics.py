@@ -42,8 +42,8 @@ def test_knee_flexion_moves_shin_backwards_and_chains() -> None:
     thigh = np.linalg.norm(b.offsets[J["l_knee"]])
     shin = np.linalg.norm(b.offsets[J["l_ankle"]])
     hip = joints[J["l_hip"]]
-    np.testing.assert_allclose(joints[J["l_knee"]], hip + [0, 0, thigh], atol=1e-12)  # thigh forward
-    np.testing.assert_allclose(joints[J["l_ankle"]], hip + [0, -shin, thigh], atol=1e-12)  # shin down
+    np.testing.assert_allclose(joints[J["l_knee"]], hip + np.array([0, 0, thigh]), atol=1e-12)  # thigh forward
+    np.testing.assert_allclose(joints[J["l_ankle"]], hip + np.array([0, -shin, thigh]), atol=1e-12)  # shin down
 
 
 def test_root_translation_and_heading() -> None:

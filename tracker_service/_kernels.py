@@ -52,3 +52,54 @@ def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float, order: NDArray[
                     buf[nk, kk, c] = q[i, order[kk], c]
             nk += 1
     return kept[:nk].copy()
+
+
+@njit(cache=True, nogil=True)
+def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
+                     ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
+                     outside_cost: float, out: NDArray[np.float64]) -> None:
+    """Sum of ``A`` under transformed templates from a horizontal integral image (eq. 12).
+
+    Parameters
+    ----------
+    integral : (h, w + 1) float64
+        ``integral[y, x] = sum(A[y, :x])``.
+    data : (R, 3) int16
+        Runs ``(y, x_start, x_end)`` of all templates.
+    ptr : (T + 1,) int64
+        Template ``i`` owns ``data[ptr[i]:ptr[i + 1]]``.
+    ids : (M,) int64
+        Template of each evaluation.
+    transforms : (M, 3) float64
+        ``(dx, dy, s)`` of each evaluation.
+    cx, cy : float
+        Scaling centre.
+    outside_cost : float
+        Cost per template pixel outside the image.
+    out : (M,) float64
+        Written with the sums (without the constant ``B`` and the ``1/|w|`` factor).
+    """
+    h = integral.shape[0]
+    w = integral.shape[1] - 1
+    for m in range(ids.shape[0]):
+        t = ids[m]
+        dx = transforms[m, 0]
+        dy = transforms[m, 1]
+        s = transforms[m, 2]
+        acc = 0.0
+        for r in range(ptr[t], ptr[t + 1]):
+            y = data[r, 0]
+            ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+            xl = int(np.floor(cx + dx + s * (data[r, 1] - cx) + 0.5))
+            xr = int(np.floor(cx + dx + s * (data[r, 2] - cx) + 0.5))
+            if xr <= xl:
+                continue
+            cl = min(max(xl, 0), w)
+            cr = min(max(xr, 0), w)
+            for yy in range(ya, yb):
+                if yy < 0 or yy >= h:
+                    acc += outside_cost * (xr - xl)
+                else:
+                    acc += integral[yy, cr] - integral[yy, cl] + outside_cost * ((xr - xl) - (cr - cl))
+        out[m] = acc

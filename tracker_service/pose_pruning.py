@@ -86,7 +86,7 @@ class PruneResult:
 
     @property
     def n_kept(self) -> int:
-        return int(len(self.kept))
+        return len(self.kept)
 
 
 def prune_poses(poses: NDArray[np.float64], threshold_deg: float = 5.0) -> PruneResult:

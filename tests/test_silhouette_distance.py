@@ -1,0 +1,94 @@
+import cv2
+import numpy as np
+import pytest
+
+from tracker_service.features import distance_maps, match_image, preprocess, pyramid, shape_skeleton
+from tracker_service.silhouette_distance import (
+    RunSet,
+    dense_distance,
+    evaluate_templates,
+    evaluate_templates_reference,
+    mask_to_runs,
+    runs_to_mask,
+)
+
+
+def _person(h: int = 240, w: int = 320, dx: int = 0, arm: float = 0.0) -> np.ndarray:
+    """A stick person: torso ellipse, head, legs, one arm at angle ``arm`` (radians from down)."""
+    m = np.zeros((h, w), np.uint8)
+    cx = w // 2 + dx
+    cv2.ellipse(m, (cx, 100), (22, 45), 0, 0, 360, 1, -1)
+    cv2.circle(m, (cx, 42), 14, 1, -1)
+    cv2.line(m, (cx - 10, 140), (cx - 14, 225), 1, 11)
+    cv2.line(m, (cx + 10, 140), (cx + 14, 225), 1, 11)
+    cv2.line(m, (cx - 22, 65), (cx - 30, 140), 1, 8)
+    ex = int(cx + 22 + 70 * np.sin(arm))
+    ey = int(65 + 70 * np.cos(arm))
+    cv2.line(m, (cx + 22, 65), (ex, ey), 1, 8)
+    return m.astype(bool)
+
+
+def test_runs_round_trip(rng: np.random.Generator) -> None:
+    m = rng.random((60, 80)) > 0.6
+    runs = mask_to_runs(m)
+    assert runs.dtype == np.int16 and runs.shape[1] == 3
+    np.testing.assert_array_equal(runs_to_mask(runs, m.shape), m)
+
+
+@pytest.mark.parametrize("distance", ["xor", "cwxor", "nwxor"])
+def test_integral_form_equals_definition(distance: str) -> None:
+    """eq. 11 + eq. 12 (integral images over runs) == eq. 7 / 8 / 10 summed pixel by pixel."""
+    s = _person(arm=0.3)
+    feats = preprocess(s, distance)  # type: ignore[arg-type]
+    lvl = feats[2]
+    for arm in (0.3, 1.2, 2.5):
+        t = _person(arm=arm, dx=3)
+        rs = RunSet([mask_to_runs(t)])
+        got = evaluate_templates(lvl, rs, np.array([0]), np.array([[0.0, 0.0, 1.0]]), (160.0, 120.0))[0]
+        want = dense_distance(s, t, distance, window_area=lvl.window_area)  # type: ignore[arg-type]
+        assert got == pytest.approx(want, rel=1e-6, abs=1e-9)
+    # identical silhouettes have distance 0
+    same = evaluate_templates(lvl, RunSet([mask_to_runs(s)]), np.array([0]), np.array([[0.0, 0.0, 1.0]]), (0, 0))
+    assert same[0] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("distance", ["xor", "cwxor", "nwxor"])
+def test_kernel_equals_reference_with_offsets_and_scales(distance: str, rng: np.random.Generator) -> None:
+    s = _person(arm=0.8)
+    feats = preprocess(s, distance)  # type: ignore[arg-type]
+    lvl = feats[1]
+    a, _ = match_image(pyramid(s)[1], distance)  # type: ignore[arg-type]
+    arms, shifts = rng.uniform(0, 3, 12), rng.integers(-30, 30, 12)
+    temps = [mask_to_runs(pyramid(_person(arm=x, dx=int(d)))[1]) for x, d in zip(arms, shifts, strict=True)]
+    rs = RunSet(temps)
+    ids = rng.integers(0, len(temps), 200)
+    tr = np.stack([rng.uniform(-70, 70, 200), rng.uniform(-50, 50, 200), rng.uniform(0.7, 1.4, 200)], axis=1)
+    got = evaluate_templates(lvl, rs, ids, tr, (80.0, 60.0))
+    want = evaluate_templates_reference(lvl, a, rs, ids, tr, (80.0, 60.0))
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_nwxor_prefers_the_right_arm_pose_more_sharply() -> None:
+    """The normalised weight keeps limbs as important as the torso (paper Fig. 3/4)."""
+    s = _person(arm=1.5)
+    scores = {}
+    for dist in ("xor", "cwxor", "nwxor"):
+        lvl = preprocess(s, dist)[2]  # type: ignore[arg-type]
+        cands = np.linspace(0, 3, 31)
+        rs = RunSet([mask_to_runs(_person(arm=x)) for x in cands])
+        d = evaluate_templates(lvl, rs, np.arange(len(cands)), np.tile([0.0, 0.0, 1.0], (len(cands), 1)), (0, 0))
+        assert abs(cands[np.argmin(d)] - 1.5) < 0.11, dist
+        scores[dist] = d
+    # relative contrast between the best and a torso-only mismatch
+    assert scores["nwxor"].min() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_skeleton_and_distance_maps() -> None:
+    m = np.zeros((40, 60), bool)
+    m[10:30, 5:55] = True
+    d_s, d_sbar = distance_maps(m)
+    assert d_s[m].max() == 0 and d_sbar[~m].max() == 0
+    assert d_sbar[20, 30] == pytest.approx(10.0, abs=0.6)
+    skl = shape_skeleton(d_sbar)
+    assert skl[19:21, 15:45].any(axis=0).all()  # the ridge runs along the middle rows
+    assert not skl[~m].any()

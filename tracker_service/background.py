@@ -1,0 +1,231 @@
+"""Background subtraction (Okada & Stenger §2.2): a per-pixel Gaussian model of intensity-normalised
+colour learned from empty frames, a Mahalanobis threshold, morphological clean-up and the largest
+connected component.
+
+Chromaticity ``(r, g) = (R, G) / (R + G + B)`` does not change under shadows and global exposure
+changes, which is why the paper normalises by intensity. It cannot see dark or grey clothing in
+front of a grey wall, so a brightness test completes it: a pixel is foreground when its chromaticity
+is far from the model (Mahalanobis distance above ``chroma_threshold``) *or* its brightness ratio
+to the model leaves ``[shadow_ratio, highlight_ratio]`` by more than the pixel's noise. Shadows
+(darker, same chromaticity) and lighting jitter stay background. In dark pixels chromaticity is
+noise, so only brightness counts there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["BackgroundModel", "BackgroundParams", "learn_background", "subtract", "update_background"]
+
+_EPS = 1e-6
+
+
+@dataclass(frozen=True)
+class BackgroundParams:
+    """Thresholds of :func:`subtract` (defaults tuned on the synthetic scene; see docs).
+
+    Attributes
+    ----------
+    chroma_threshold : float
+        Mahalanobis distance on chromaticity above which a pixel is foreground.
+    shadow_ratio, highlight_ratio : float
+        Brightness ratios (frame / model) still explained by shadows and highlights.
+    brightness_sigmas : float
+        Noise margin on the brightness ratio, in standard deviations of the pixel's brightness.
+    dark_level : float
+        Model brightness (0-255) under which chromaticity is ignored.
+    min_area_frac : float
+        The largest component must cover at least this fraction of the image, else empty mask.
+    open_px, close_px : int
+        Morphological opening / closing kernel sizes (pixels at the working resolution).
+    """
+
+    chroma_threshold: float = 4.0
+    shadow_ratio: float = 0.45
+    highlight_ratio: float = 1.45
+    brightness_sigmas: float = 4.0
+    dark_level: float = 25.0
+    min_area_frac: float = 0.002
+    open_px: int = 3
+    close_px: int = 7
+
+
+@dataclass(frozen=True)
+class BackgroundModel:
+    """Per-pixel Gaussian background model.
+
+    Attributes
+    ----------
+    chroma_mean : (H, W, 2) float32
+        Mean chromaticity ``(r, g)``.
+    chroma_inv_var : (H, W, 2) float32
+        Inverse variances (diagonal covariance) of the chromaticity.
+    bright_mean : (H, W) float32
+        Mean brightness ``(R + G + B) / 3``.
+    bright_std : (H, W) float32
+        Standard deviation of the brightness.
+    n_frames : int
+        Frames the model was learned from.
+    """
+
+    chroma_mean: NDArray[np.float32]
+    chroma_inv_var: NDArray[np.float32]
+    bright_mean: NDArray[np.float32]
+    bright_std: NDArray[np.float32]
+    n_frames: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.bright_mean.shape[0]), int(self.bright_mean.shape[1]))
+
+
+def _chroma_bright(frame: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    f = frame.astype(np.float32)
+    s = f.sum(axis=-1)
+    chroma = f[..., 1:3] / np.maximum(s, _EPS)[..., None]  # BGR: (G, R) / sum
+    return chroma, s / 3.0
+
+
+def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
+                     bright_std_floor: float = 2.0) -> BackgroundModel:
+    """Learn the model from frames of the empty scene.
+
+    Parameters
+    ----------
+    frames : (N, H, W, 3) uint8
+        BGR frames without the subject (N >= 2; 10-30 recommended).
+    chroma_std_floor, bright_std_floor : float
+        Lower bounds of the standard deviations (a static synthetic scene has none).
+
+    Returns
+    -------
+    BackgroundModel
+    """
+    f = np.asarray(frames)
+    if f.ndim != 4 or f.shape[-1] != 3 or f.shape[0] < 2:
+        raise ValueError(f"need (N >= 2, H, W, 3) frames, got {f.shape}")
+    c, b = _chroma_bright(f)
+    c_std = np.maximum(c.std(axis=0), chroma_std_floor)
+    b_std = np.maximum(b.std(axis=0), bright_std_floor)
+    return BackgroundModel(
+        chroma_mean=c.mean(axis=0).astype(np.float32),
+        chroma_inv_var=(1.0 / c_std**2).astype(np.float32),
+        bright_mean=b.mean(axis=0).astype(np.float32),
+        bright_std=b_std.astype(np.float32),
+        n_frames=int(f.shape[0]),
+    )
+
+
+def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
+                   params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """Per-pixel classification before clean-up.
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    params : BackgroundParams
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    if frame.shape[:2] != model.shape or frame.ndim != 3:
+        raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
+    c, b = _chroma_bright(frame)
+    d = c - model.chroma_mean
+    maha = np.sqrt((d * d * model.chroma_inv_var).sum(axis=-1))
+    ratio = b / np.maximum(model.bright_mean, 1.0)
+    margin = params.brightness_sigmas * model.bright_std / np.maximum(model.bright_mean, 1.0)
+    bright_fg = (ratio < params.shadow_ratio - margin) | (ratio > params.highlight_ratio + margin)
+    lit = (model.bright_mean > params.dark_level) & (b > params.dark_level)
+    return bright_fg | (lit & (maha > params.chroma_threshold))
+
+
+def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """Opening, closing, largest connected component, holes filled.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+
+    Returns
+    -------
+    (H, W) bool
+        Empty if the largest component is smaller than ``min_area_frac`` of the image.
+    """
+    m = np.asarray(mask, dtype=np.uint8)
+    for op, size in ((cv2.MORPH_OPEN, params.open_px), (cv2.MORPH_CLOSE, params.close_px)):
+        if size > 1:
+            m = np.asarray(cv2.morphologyEx(m, op, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))),
+                           dtype=np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return np.zeros(mask.shape, bool)
+    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    if stats[k, cv2.CC_STAT_AREA] < params.min_area_frac * mask.size:
+        return np.zeros(mask.shape, bool)
+    comp = (labels == k).astype(np.uint8)
+    # fill holes: background regions not connected to the border
+    inv = 1 - comp
+    _, lab_b, _, _ = cv2.connectedComponentsWithStats(inv, connectivity=4)
+    border = np.unique(np.concatenate([lab_b[0], lab_b[-1], lab_b[:, 0], lab_b[:, -1]]))
+    holes = (inv == 1) & ~np.isin(lab_b, border)
+    return (comp == 1) | holes
+
+
+def subtract(model: BackgroundModel, frame: NDArray[np.uint8],
+             params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """The subject's silhouette in a frame.
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+        BGR frame at the model's resolution.
+    params : BackgroundParams
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    return clean_mask(raw_foreground(model, frame, params), params)
+
+
+def update_background(model: BackgroundModel, frame: NDArray[np.uint8], foreground: NDArray[np.bool_],
+                      rate: float = 0.01) -> BackgroundModel:
+    """Slow adaptive update of the background pixels (running mean and variance).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    foreground : (H, W) bool
+        Pixels to leave untouched (the subject, dilated by the caller if desired).
+    rate : float
+        Learning rate in (0, 1).
+
+    Returns
+    -------
+    BackgroundModel
+    """
+    if not 0 < rate < 1:
+        raise ValueError("rate must be in (0, 1)")
+    c, b = _chroma_bright(frame)
+    w = np.where(foreground, 0.0, rate).astype(np.float32)
+    cm = model.chroma_mean + w[..., None] * (c - model.chroma_mean)
+    c_var = 1.0 / model.chroma_inv_var
+    c_var = c_var + w[..., None] * ((c - cm) ** 2 - c_var)
+    bm = model.bright_mean + w * (b - model.bright_mean)
+    b_var = model.bright_std**2 + w * ((b - bm) ** 2 - model.bright_std**2)
+    return replace(
+        model,
+        chroma_mean=cm.astype(np.float32),
+        chroma_inv_var=(1.0 / np.maximum(c_var, 0.004**2)).astype(np.float32),
+        bright_mean=bm.astype(np.float32),
+        bright_std=np.sqrt(np.maximum(b_var, 4.0)).astype(np.float32),
+    )

@@ -1,0 +1,218 @@
+"""Pre-processing of an observed silhouette (Okada & Stenger §2.2): image pyramid, distance
+transforms, shape skeleton, the matching weights of eq. 9 / eq. 10 and their horizontal integral
+images (eq. 12).
+
+Every distance of :mod:`tracker_service.silhouette_distance` has the form (eq. 11 rearranged)
+
+    d(S, T) = ( sum_{k: T(k)=1} A(k) + B ) / |w|
+
+with a per-pixel image ``A`` and a constant ``B`` that depend only on the observation ``S``:
+
+=========  ===================================  ==============================
+distance   A                                    B
+=========  ===================================  ==============================
+XOR        1 - 2 S                              |S|
+cwXOR      D(S) - alpha D(S̄)                    alpha * sum D(S̄)     (eq. 8-9)
+nwXOR      D(S) - beta D(S̄)/(D(S̄)+D(S_skl))     beta * sum of that   (eq. 10-11)
+=========  ===================================  ==============================
+
+so only the horizontal integral image of ``A`` is needed to evaluate any template given as
+horizontal runs (eq. 12).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "DISTANCES",
+    "LEVEL_SIZES",
+    "Distance",
+    "LevelFeatures",
+    "core_weight",
+    "distance_maps",
+    "match_image",
+    "preprocess",
+    "pyramid",
+    "shape_skeleton",
+]
+
+Distance = Literal["xor", "cwxor", "nwxor"]
+DISTANCES: Final[tuple[str, ...]] = ("xor", "cwxor", "nwxor")
+#: (width, height) of the pyramid levels used at tree levels 1..3 (paper §2.1).
+LEVEL_SIZES: Final[tuple[tuple[int, int], ...]] = ((80, 60), (160, 120), (320, 240))
+
+
+def pyramid(mask: NDArray[np.bool_], sizes: tuple[tuple[int, int], ...] = LEVEL_SIZES) -> list[NDArray[np.bool_]]:
+    """Down-sample a silhouette to each pyramid level by area averaging (>= 50 % coverage).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    sizes : tuple of (width, height)
+
+    Returns
+    -------
+    list of (h_l, w_l) bool
+    """
+    m = mask.astype(np.float32)
+    out = []
+    for w, h in sizes:
+        if (w, h) == (mask.shape[1], mask.shape[0]):
+            out.append(mask.astype(bool))
+        else:
+            out.append(cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA) >= 0.5)
+    return out
+
+
+def distance_maps(mask: NDArray[np.bool_]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Euclidean distance transforms of a silhouette.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+        Silhouette S.
+
+    Returns
+    -------
+    d_s : (H, W) float32
+        ``D(S)``: 0 inside S, distance to S outside.
+    d_sbar : (H, W) float32
+        ``D(S̄)``: 0 outside S, distance to the background inside (large on the core).
+    """
+    m = mask.astype(np.uint8)
+    d_s = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_5)
+    d_sbar = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_5)
+    return d_s.astype(np.float32), d_sbar.astype(np.float32)
+
+
+def shape_skeleton(d_sbar: NDArray[np.float32]) -> NDArray[np.bool_]:
+    """The shape skeleton: the ridge of ``D(S̄)`` (pixels not smaller than any 8-neighbour).
+
+    Parameters
+    ----------
+    d_sbar : (H, W) float32
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    ridge = (d_sbar >= cv2.dilate(d_sbar, np.ones((3, 3), np.uint8)) - 1e-6) & (d_sbar > 0)
+    if not ridge.any() and (d_sbar > 0).any():  # degenerate: a single peak region
+        ridge = d_sbar >= d_sbar.max()
+    return ridge
+
+
+def core_weight(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: float = 5.0,
+                beta: float = 1.0) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``D(S)`` and the inner (core) term of the weight ``g`` of a distance.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    distance : {'xor', 'cwxor', 'nwxor'}
+    alpha, beta : float
+
+    Returns
+    -------
+    d_s : (H, W) float32
+        ``D(S)`` (for XOR: 1 outside S).
+    inner : (H, W) float32
+        XOR: 1 inside S; cwXOR: ``alpha D(S̄)`` (eq. 9); nwXOR: ``beta D(S̄) / (D(S̄) + D(S_skl))``
+        (eq. 10); 0 outside S. So ``g = d_s + inner``.
+    """
+    s = np.asarray(mask, dtype=bool)
+    if distance == "xor":
+        return (~s).astype(np.float32), s.astype(np.float32)
+    d_s, d_sbar = distance_maps(s)
+    if distance == "cwxor":
+        return d_s, (alpha * d_sbar).astype(np.float32)  # eq. 9
+    if distance == "nwxor":
+        skl = shape_skeleton(d_sbar)
+        d_skl = cv2.distanceTransform((~skl).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        inner = np.where(s, beta * d_sbar / np.maximum(d_sbar + d_skl, 1e-6), 0.0)  # eq. 10
+        return d_s, inner.astype(np.float32)
+    raise ValueError(f"unknown distance {distance!r}; use one of {DISTANCES}")
+
+
+def match_image(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: float = 5.0,
+                beta: float = 1.0) -> tuple[NDArray[np.float32], float]:
+    """The per-pixel image ``A = D(S) - inner`` and constant ``B = sum(inner)`` of eq. 11.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+        Observed silhouette S.
+    distance : {'xor', 'cwxor', 'nwxor'}
+    alpha : float
+        Core weight of eq. 9 (paper: 5).
+    beta : float
+        Weight of the normalised term of eq. 10 (paper: 1).
+
+    Returns
+    -------
+    a : (H, W) float32
+    b : float
+    """
+    d_s, inner = core_weight(mask, distance, alpha, beta)
+    return (d_s - inner).astype(np.float32), float(inner.sum(dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class LevelFeatures:
+    """Everything the likelihood needs at one pyramid level.
+
+    Attributes
+    ----------
+    integral : (h, w + 1) float64
+        Horizontal integral image of ``A``: ``integral[y, x] = sum(A[y, :x])`` (eq. 12).
+    b : float
+        The constant term ``B``.
+    window_area : float
+        ``|w|``: area (pixels) of the fixed bounding window, the silhouette's bounding box grown by
+        25 % each way; normalises distances across sizes and levels.
+    shape : (int, int)
+        ``(h, w)`` of the level.
+    """
+
+    integral: NDArray[np.float64]
+    b: float
+    window_area: float
+    shape: tuple[int, int]
+
+
+def preprocess(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: float = 5.0, beta: float = 1.0,
+               sizes: tuple[tuple[int, int], ...] = LEVEL_SIZES) -> list[LevelFeatures]:
+    """Pyramid and integral images of an observed silhouette, coarse to fine.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+        Full-resolution silhouette (320x240 by default).
+    distance, alpha, beta
+        See :func:`match_image`.
+    sizes : tuple of (width, height)
+
+    Returns
+    -------
+    list of LevelFeatures, one per level.
+    """
+    out = []
+    for lvl in pyramid(mask, sizes):
+        a, b = match_image(lvl, distance, alpha, beta)
+        integral = np.zeros((a.shape[0], a.shape[1] + 1))
+        np.cumsum(a, axis=1, dtype=np.float64, out=integral[:, 1:])
+        ys, xs = np.nonzero(lvl)
+        if len(ys):
+            hh = (ys.max() - ys.min() + 1) * 1.5
+            ww = (xs.max() - xs.min() + 1) * 1.5
+            area = float(hh * ww)
+        else:
+            area = float(lvl.size)
+        out.append(LevelFeatures(integral, b, max(area, 1.0), (lvl.shape[0], lvl.shape[1])))
+    return out

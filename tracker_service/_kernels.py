@@ -103,3 +103,37 @@ def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr
                 else:
                     acc += integral[yy, cr] - integral[yy, cl] + outside_cost * ((xr - xl) - (cr - cl))
         out[m] = acc
+
+
+@njit(cache=True, nogil=True)
+def _popcount64(x: np.uint64) -> np.uint64:
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@njit(cache=True, nogil=True)
+def hamming_to_many(packed: NDArray[np.uint64], proto: int, members: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Number of differing bits between template ``proto`` and each of ``members``.
+
+    Parameters
+    ----------
+    packed : (N, words) uint64
+        Bit-packed masks.
+    proto : int
+    members : (n,) int64
+
+    Returns
+    -------
+    (n,) int64
+    """
+    words = packed.shape[1]
+    out = np.empty(members.shape[0], np.int64)
+    for i in range(members.shape[0]):
+        m = members[i]
+        acc = np.uint64(0)
+        for w in range(words):
+            acc += _popcount64(packed[proto, w] ^ packed[m, w])
+        out[i] = np.int64(acc)
+    return out

@@ -398,8 +398,13 @@ def fit_body(src: SourceSkeleton, poses: NDArray[np.float64], name: str = "fitte
 
 
 def artifact_mask(positions: NDArray[np.float64], fps: float, lead_frames: int = 12,
-                  glitch_speed: float = 15.0) -> tuple[int, NDArray[np.bool_]]:
-    """Find converter artefacts: leading rest/T-pose/blend frames and single-frame glitches.
+                  max_accel: float = 1000.0) -> tuple[int, NDArray[np.bool_]]:
+    """Find converter artefacts: leading rest/T-pose/blend frames and glitches.
+
+    A frame is an artefact when some joint's acceleration (second difference of positions)
+    exceeds ``max_accel``. Over all 252 shared recordings, clean motion stays below ~820 m/s^2
+    (fast hands and feet included; Bandai takes below 240), while the converters' T-pose, rest and
+    blend frames jump with 1,200-14,000 m/s^2 and the right-leg glitch of ``60_10`` reaches 9,000.
 
     Parameters
     ----------
@@ -407,29 +412,26 @@ def artifact_mask(positions: NDArray[np.float64], fps: float, lead_frames: int =
         Joint positions, metres.
     fps : float
     lead_frames : int
-        How many leading frames may be artefacts.
-    glitch_speed : float
-        A joint speed (m/s) above which a frame pair is a glitch (no human limb moves at 15 m/s
-        in a clean capture except for brief hand peaks of throws; recordings here stay < 12 m/s).
+        How many leading frames may be artefacts to trim.
+    max_accel : float
+        Acceleration threshold, m/s^2.
 
     Returns
     -------
     start : int
         First clean frame (frames before it should be dropped).
     valid : (F,) bool
-        False on frames next to a glitch.
+        False on frames around a glitch after ``start``.
     """
     f = len(positions)
     valid = np.ones(f, bool)
     if f < 3:
         return 0, valid
-    speed = np.linalg.norm(np.diff(positions, axis=0), axis=-1).max(axis=1) * fps  # (F-1,)
-    ref = float(np.median(speed[min(lead_frames, f - 2):])) if f > lead_frames + 2 else float(np.median(speed))
-    thr = max(3.0, 6.0 * ref)
-    start = 0
-    for t in range(min(lead_frames, f - 1)):
-        if speed[t] > thr:
-            start = t + 1
-    for g in np.flatnonzero(speed > glitch_speed):
-        valid[max(int(g) - 1, 0): int(g) + 3] = False
+    p = np.asarray(positions, dtype=np.float64)
+    acc = np.linalg.norm(p[2:] - 2 * p[1:-1] + p[:-2], axis=-1).max(axis=1) * fps * fps  # centred at 1..F-2
+    bad = np.flatnonzero(acc > max_accel)
+    lead = bad[bad < lead_frames]
+    start = int(lead.max()) + 1 if len(lead) else 0
+    for g in bad[bad >= lead_frames]:
+        valid[int(g): int(g) + 3] = False  # the frames around the centred frame g + 1
     return start, valid

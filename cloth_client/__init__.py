@@ -1,0 +1,1 @@
+"""The virtual-clothing front-end: an avatar that follows the tracked poses, dressed in simulated cloth."""

@@ -1,0 +1,8 @@
+"""``python -m tracker_service``: the same as the ``mocap-tracker`` command."""
+
+import sys
+
+from .cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

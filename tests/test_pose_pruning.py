@@ -43,6 +43,11 @@ def test_pruning_semantics(rng: np.random.Generator) -> None:
             assert close.sum() == 1  # only itself
         else:
             assert close[kept < i].any()  # an earlier kept pose covers it
+    # the cover map points at a kept pose within the threshold
+    res = prune_poses(p, 5.0)
+    for i in range(len(p)):
+        d = np.abs(np.einsum("kc,kc->k", q[res.kept[res.cover[i]]], q[i]))
+        assert np.all(d > c - 1e-6)
 
 
 def test_heading_is_ignored_but_tilt_is_not() -> None:

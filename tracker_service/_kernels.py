@@ -9,7 +9,8 @@ from numpy.typing import NDArray
 
 
 @njit(cache=True, nogil=True)
-def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float, order: NDArray[np.int64]) -> NDArray[np.int64]:
+def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float,
+                        order: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Greedy §2.1 pose pruning on per-joint unit quaternions.
 
     Parameters
@@ -23,16 +24,20 @@ def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float, order: NDArray[
 
     Returns
     -------
-    (M,) int64
+    kept : (M,) int64
         Indices of the kept poses, increasing. Pose ``i`` is kept iff for every earlier kept
         pose some joint differs by at least the threshold.
+    cover : (N,) int64
+        For every pose, the position in ``kept`` of the kept pose that covers it (itself if kept;
+        the most recently kept one within the threshold otherwise).
     """
     n, k = q.shape[0], q.shape[1]
     kept = np.empty(n, np.int64)
+    cover = np.empty(n, np.int64)
     buf = np.empty((n, k, 4), np.float32)  # kept features, compact, in comparison order
     nk = 0
     for i in range(n):
-        redundant = False
+        hit = -1
         for m in range(nk - 1, -1, -1):  # recent poses first: neighbours in time are likeliest
             same = True
             for kk in range(k):
@@ -43,15 +48,18 @@ def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float, order: NDArray[
                     same = False
                     break
             if same:
-                redundant = True
+                hit = m
                 break
-        if not redundant:
+        if hit >= 0:
+            cover[i] = hit
+        else:
             kept[nk] = i
+            cover[i] = nk
             for kk in range(k):
                 for c in range(4):
                     buf[nk, kk, c] = q[i, order[kk], c]
             nk += 1
-    return kept[:nk].copy()
+    return kept[:nk].copy(), cover
 
 
 @njit(cache=True, nogil=True)
@@ -143,8 +151,9 @@ def hamming_to_many(packed: NDArray[np.uint64], proto: int, members: NDArray[np.
 # Capsule silhouette rasteriser (tracker_service.silhouette_render). A projected tapered capsule is
 # the convex hull of two circles; each image row meets it in one interval, found from the two
 # circles and the two outer tangent segments. ``caps`` rows hold
-# ``(x1, y1, r1, x2, y2, r2, z1, z2)``: circle centres and radii in pixels (OpenCV pixel-centre
-# convention) and the front-surface depth at each end (metres); ``r1 <= 0`` marks a capsule to skip.
+# ``(x1, y1, r1, x2, y2, r2, z1, z2, R1, R2)``: circle centres and radii in pixels (OpenCV
+# pixel-centre convention), the depth of each end's centre and its radius (metres); ``r1 <= 0``
+# marks a capsule to skip.
 # ------------------------------------------------------------------------------------------------
 
 
@@ -154,8 +163,8 @@ def capsule_hull_kernel(cap: NDArray[np.float64], hull: NDArray[np.float64]) -> 
 
     Parameters
     ----------
-    cap : (8,) float64
-        ``(x1, y1, r1, x2, y2, r2, z1, z2)``.
+    cap : (10,) float64
+        ``(x1, y1, r1, x2, y2, r2, z1, z2, R1, R2)``.
     hull : (8,) float64
         Written with the tangent segments ``(ax1, ay1, ax2, ay2, bx1, by1, bx2, by2)``.
 
@@ -231,7 +240,7 @@ def fill_capsules_kernel(caps: NDArray[np.float64], mask: NDArray[np.bool_]) -> 
 
     Parameters
     ----------
-    caps : (C, 8) float64
+    caps : (C, 10) float64
         Projected capsules (see the section comment).
     mask : (H, W) bool
         Filled in place (not cleared first).
@@ -253,7 +262,7 @@ def fill_capsules_kernel(caps: NDArray[np.float64], mask: NDArray[np.bool_]) -> 
 
 @njit(cache=True, nogil=True)
 def fill_capsules_batch_kernel(caps: NDArray[np.float64], masks: NDArray[np.bool_]) -> None:
-    """:func:`fill_capsules_kernel` over a batch: ``caps (N, C, 8)``, ``masks (N, H, W)`` (cleared here)."""
+    """:func:`fill_capsules_kernel` over a batch: ``caps (N, C, 10)``, ``masks (N, H, W)`` (cleared here)."""
     for n in range(caps.shape[0]):
         masks[n, :, :] = False
         fill_capsules_kernel(caps[n], masks[n])
@@ -265,12 +274,14 @@ def label_capsules_kernel(caps: NDArray[np.float64], parts: NDArray[np.int64],
                           visible: NDArray[np.int64], areas: NDArray[np.int64]) -> None:
     """Z-buffered part labels of projected capsules.
 
-    The depth of a capsule at a pixel is its front-surface depth interpolated along the projected
-    axis (``z1 + t (z2 - z1)``, ``t`` the pixel's clamped position along the 2D segment).
+    The depth of a capsule at a pixel is that of its front surface: with ``t`` the pixel's clamped
+    position along the projected axis, ``q`` its image distance from the axis point at ``t`` and
+    ``rho``, ``R``, ``z`` the projected radius, radius and centre depth interpolated at ``t``,
+    ``z - R sqrt(1 - (q / rho)^2)``.
 
     Parameters
     ----------
-    caps : (C, 8) float64
+    caps : (C, 10) float64
         Projected capsules.
     parts : (C,) int64
         Part index (< 16) of each capsule.
@@ -292,6 +303,8 @@ def label_capsules_kernel(caps: NDArray[np.float64], parts: NDArray[np.int64],
             continue
         x1, y1, x2, y2 = caps[c, 0], caps[c, 1], caps[c, 3], caps[c, 4]
         z1, z2 = caps[c, 6], caps[c, 7]
+        rr1, rr2 = caps[c, 2], caps[c, 5]
+        w1, w2 = caps[c, 8], caps[c, 9]
         ax = x2 - x1
         ay = y2 - y1
         l2 = ax * ax + ay * ay
@@ -312,7 +325,11 @@ def label_capsules_kernel(caps: NDArray[np.float64], parts: NDArray[np.int64],
             for j in range(j0, j1 + 1):
                 t = ((j - x1) * ax + (i - y1) * ay) * inv
                 t = min(max(t, 0.0), 1.0)
-                z = np.float32(z1 + t * (z2 - z1))
+                qx = j - (x1 + t * ax)
+                qy = i - (y1 + t * ay)
+                rho = rr1 + t * (rr2 - rr1)
+                f = max(1.0 - (qx * qx + qy * qy) / (rho * rho), 0.0)
+                z = np.float32(z1 + t * (z2 - z1) - (w1 + t * (w2 - w1)) * np.sqrt(f))
                 cover[i, j] |= bit
                 if z < zbuf[i, j]:
                     zbuf[i, j] = z
@@ -340,7 +357,7 @@ def capsule_runs_kernel(caps: NDArray[np.float64], height: int, width: int,
 
     Parameters
     ----------
-    caps : (C, 8) float64
+    caps : (C, 10) float64
     height, width : int
         Image size (runs are clipped to it).
     out : (M, 3) int16
@@ -404,7 +421,7 @@ def capsule_runs_kernel(caps: NDArray[np.float64], height: int, width: int,
 @njit(cache=True, nogil=True)
 def capsule_runs_batch_kernel(caps: NDArray[np.float64], height: int,
                               width: int) -> tuple[NDArray[np.int16], NDArray[np.int64]]:
-    """:func:`capsule_runs_kernel` over ``caps (N, C, 8)``: packed ``data (R, 3) int16`` and ``ptr (N + 1,)``."""
+    """:func:`capsule_runs_kernel` over ``caps (N, C, 10)``: packed ``data (R, 3) int16`` and ``ptr (N + 1,)``."""
     n = caps.shape[0]
     scratch = np.empty((height * caps.shape[1] + 1, 3), np.int16)
     data = np.empty((max(n * 64, 64), 3), np.int16)
@@ -420,3 +437,5 @@ def capsule_runs_batch_kernel(caps: NDArray[np.float64], height: int,
         total += k
         ptr[p + 1] = total
     return data[:total].copy(), ptr
+
+# ---- end of the capsule silhouette rasteriser ----

@@ -25,23 +25,28 @@ __all__ = ["PruneResult", "pose_features", "prune_poses", "prune_poses_reference
 log = logging.getLogger(__name__)
 
 
-def pose_features(poses: NDArray[np.float64]) -> NDArray[np.float32]:
+def pose_features(poses: NDArray[np.float64], compare_heading: bool = False) -> NDArray[np.float32]:
     """Per-joint unit quaternions compared by the pruning.
 
     Parameters
     ----------
     poses : (N, P) float
+    compare_heading : bool
+        Keep the root's full orientation (heading included) instead of its tilt only.
 
     Returns
     -------
     (N, R, 4) float32
-        ``R = len(ROT_JOINTS)``: the root's tilt (heading removed) then every joint's local rotation.
+        ``R = len(ROT_JOINTS)``: the root's tilt (or full orientation) then every joint's local
+        rotation.
     """
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != POSE_SIZE:
         raise ValueError(f"poses must be (N, {POSE_SIZE})")
     n = len(p)
     q = matrix_to_quat(rotvec_to_matrix(p[:, 3:].reshape(n, len(ROT_JOINTS), 3)))
+    if compare_heading:
+        return q.astype(np.float32)
     # swing-twist about Y: root = swing * twist; keep the swing (tilt) only
     r = q[:, 0]
     tw = np.stack([r[:, 0], np.zeros(n), r[:, 2], np.zeros(n)], axis=1)
@@ -73,6 +78,9 @@ class PruneResult:
     ----------
     kept : (M,) int64
         Indices of the kept poses into the input, increasing.
+    cover : (N,) int64
+        For every input pose, the position in ``kept`` of the kept pose within the threshold of it
+        (used to map recording frames onto database poses for the transition histograms).
     n_input : int
     seconds : float
         Wall time of the pruning.
@@ -80,6 +88,7 @@ class PruneResult:
     """
 
     kept: NDArray[np.int64]
+    cover: NDArray[np.int64]
     n_input: int
     seconds: float
     threshold_deg: float
@@ -89,7 +98,8 @@ class PruneResult:
         return len(self.kept)
 
 
-def prune_poses(poses: NDArray[np.float64], threshold_deg: float = 5.0) -> PruneResult:
+def prune_poses(poses: NDArray[np.float64], threshold_deg: float = 5.0, compare_heading: bool = False
+                ) -> PruneResult:
     """Greedy pruning (numba kernel).
 
     Parameters
@@ -98,6 +108,8 @@ def prune_poses(poses: NDArray[np.float64], threshold_deg: float = 5.0) -> Prune
         Candidate poses in order (recordings concatenated frame by frame).
     threshold_deg : float
         Minimum joint-angle difference, degrees (paper: 5).
+    compare_heading : bool
+        Also compare the root's heading (for heading-augmented template sets).
 
     Returns
     -------
@@ -106,14 +118,14 @@ def prune_poses(poses: NDArray[np.float64], threshold_deg: float = 5.0) -> Prune
     if not threshold_deg > 0:
         raise ValueError("threshold_deg must be positive")
     t0 = time.perf_counter()
-    q = pose_features(poses)
+    q = pose_features(poses, compare_heading)
     if len(q) == 0:
-        return PruneResult(np.zeros(0, np.int64), 0, 0.0, threshold_deg)
-    kept = greedy_prune_kernel(np.ascontiguousarray(q), float(np.cos(np.radians(threshold_deg) / 2)),
+        return PruneResult(np.zeros(0, np.int64), np.zeros(0, np.int64), 0, 0.0, threshold_deg)
+    kept, cover = greedy_prune_kernel(np.ascontiguousarray(q), float(np.cos(np.radians(threshold_deg) / 2)),
                                _comparison_order(q))
     dt = time.perf_counter() - t0
     log.info("pruned %d poses to %d at %.1f deg in %.2f s", len(q), len(kept), threshold_deg, dt)
-    return PruneResult(kept, len(q), dt, threshold_deg)
+    return PruneResult(kept, cover, len(q), dt, threshold_deg)
 
 
 def prune_poses_reference(poses: NDArray[np.float64], threshold_deg: float = 5.0) -> NDArray[np.int64]:

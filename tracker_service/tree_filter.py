@@ -1,0 +1,396 @@
+"""Tree-based Bayesian filtering over the shape hierarchy (Okada & Stenger §2, eq. 1-6, 13-14).
+
+The state is a leaf of the template tree (a pose) plus the subject's global placement in the image
+(a shift ``(dx, dy)`` and a scale ``s`` about the principal point: a depth change for a level
+camera). Per frame:
+
+1. **Prediction** (eq. 2 / eq. 5): the previous leaf posterior is pushed through the transition
+   model -- the leaf transition histograms of the recordings mixed with the first-order Gaussian
+   dynamics of eq. 13, whose per-part standard deviations are multiplied by ``m`` for parts that
+   were occluded (eq. 14) -- plus a small uniform mass that lets the filter re-acquire. The prior
+   of a node is the sum of its leaves' priors (eq. 4).
+2. **Update, coarse to fine** (eq. 1, eq. 6): level by level on the image pyramid, every candidate
+   node's prototype silhouette is compared with the observation at a few placements around the
+   predicted one; the Gaussian likelihood of the best placement times the node prior gives the node
+   posterior; children of nodes whose posterior falls below a fraction of the level's best are
+   not searched.
+3. **Estimate**: the MAP leaf with its placement refined at full resolution, the posterior-mean
+   pose over the retained leaves, and the visibility of each part (from the MAP template's part
+   labels) that drives eq. 14 in the next frame.
+
+Everything here is a pure function of arrays: ``step(state, db, features, obs) -> (state, estimate)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.rotations import matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
+from protocol.skeleton import N_PARTS, POSE_SIZE
+
+from .features import LevelFeatures
+from .silhouette_distance import RunSet, evaluate_templates
+from .template_tree import TemplateTree
+
+__all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "step"]
+
+
+@dataclass(frozen=True)
+class FilterDB:
+    """What the filter needs of a template database (see :mod:`tracker_service.template_db`).
+
+    Attributes
+    ----------
+    tree : TemplateTree
+    level_runs : tuple of RunSet
+        Prototype silhouette runs of every node of each level, at that level's resolution.
+    level_scale : tuple of float
+        Pixel scale of each level relative to full resolution (e.g. 0.25, 0.5, 1).
+    center : (float, float)
+        Scaling centre (principal point) at full resolution.
+    leaf_poses : (NL, P) float32
+        Pose of each leaf's prototype, rendered at the reference placement.
+    leaf_visible : (NL, N_PARTS) float32
+        Visible fraction of each part in each leaf's template.
+    leaf_anc : (L, NL) int64
+        Ancestor node of each leaf at every level (the last row is ``arange(NL)``).
+    leaf_facing : (NL,) bool
+        Leaves facing the camera (for the initial front/back choice).
+    trans_ptr, trans_idx, trans_p : CSR (NL + 1,), (E,), (E,)
+        Leaf transition histograms (row-normalised) from the recordings' frame order.
+    nbr_idx : (NL, K) int64
+        Nearest leaves in pose space (first column: the leaf itself).
+    nbr_dpart : (NL, K, N_PARTS) float32
+        Squared joint-angle differences (rad^2) to each neighbour, summed per body part.
+    sigma_part : (N_PARTS,) float32
+        Per-part standard deviation of eq. 13 (radians per frame at 30 Hz).
+    """
+
+    tree: TemplateTree
+    level_runs: tuple[RunSet, ...]
+    level_scale: tuple[float, ...]
+    center: tuple[float, float]
+    leaf_poses: NDArray[np.float32]
+    leaf_visible: NDArray[np.float32]
+    leaf_anc: NDArray[np.int64]
+    leaf_facing: NDArray[np.bool_]
+    trans_ptr: NDArray[np.int64]
+    trans_idx: NDArray[np.int64]
+    trans_p: NDArray[np.float32]
+    nbr_idx: NDArray[np.int64]
+    nbr_dpart: NDArray[np.float32]
+    sigma_part: NDArray[np.float32]
+
+    @property
+    def n_leaves(self) -> int:
+        return int(self.leaf_poses.shape[0])
+
+
+@dataclass(frozen=True)
+class FilterParams:
+    """Tuning of the filter (defaults documented in docs/TRACKER.md).
+
+    Attributes
+    ----------
+    sigma : tuple of float
+        Likelihood standard deviation per level (eq. 6), in distance units.
+    keep_rel : float
+        Nodes with posterior below ``keep_rel`` times the level's best are pruned.
+    max_keep : tuple of int
+        At most this many nodes are expanded per level.
+    grid : tuple of (int, int)
+        Placement search grid (shift steps x scale steps) per level, around each node's parent's
+        best placement.
+    refine : int
+        Best leaves whose placement is refined at full resolution.
+    placement_sigma_px, placement_sigma_scale : float
+        Gaussian prior of the placement around the prediction (shift in pixels, relative scale).
+    observation_weight : float
+        Weight of the placement measured from the silhouette against the motion prediction.
+    uniform_mass : float
+        Prior mass spread uniformly over all leaves (re-acquisition).
+    hist_weight : float
+        Weight of the transition histograms against the Gaussian dynamics.
+    occlusion_m : float
+        ``m`` of eq. 14.
+    support : int
+        Leaves carried to the next frame.
+    step_px : float
+        Placement search step (full-resolution pixels) at the coarsest level.
+    step_scale : float
+        Relative scale search step at the coarsest level.
+    lost_distance : float
+        A frame whose best level-3 distance exceeds this counts as a miss.
+    lost_frames : int
+        Consecutive misses that trigger re-initialisation.
+    """
+
+    sigma: tuple[float, ...] = (0.01, 0.008, 0.006)
+    keep_rel: float = 2e-3
+    max_keep: tuple[int, ...] = (16, 48)
+    grid: tuple[tuple[int, int], ...] = ((3, 3), (3, 1), (1, 1))
+    refine: int = 6
+    placement_sigma_px: float = 6.0
+    placement_sigma_scale: float = 0.03
+    observation_weight: float = 0.7
+    uniform_mass: float = 0.05
+    hist_weight: float = 0.5
+    occlusion_m: float = 5.0
+    support: int = 48
+    step_px: float = 8.0
+    step_scale: float = 0.05
+    lost_distance: float = 0.6
+    lost_frames: int = 6
+
+
+@dataclass(frozen=True)
+class FilterState:
+    """Posterior carried between frames.
+
+    Attributes
+    ----------
+    leaves : (M,) int64
+        Supported leaves.
+    weights : (M,) float64
+        Their posterior probabilities (sum 1); empty means "no information" (initial state).
+    placement : (3,) float64
+        ``(dx, dy, s)`` of the MAP estimate (full-resolution pixels).
+    velocity : (3,) float64
+        Per-frame change of the placement.
+    occluded : (N_PARTS,) bool
+        Parts occluded in the last estimate (eq. 14).
+    misses : int
+        Consecutive frames above ``lost_distance``.
+    reinits : int
+        Re-initialisations so far.
+    """
+
+    leaves: NDArray[np.int64]
+    weights: NDArray[np.float64]
+    placement: NDArray[np.float64]
+    velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    occluded: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_PARTS, bool))
+    misses: int = 0
+    reinits: int = 0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Result of one filter step.
+
+    Attributes
+    ----------
+    leaf : int
+        MAP leaf.
+    pose_map : (P,) float64
+        MAP leaf pose (reference placement; the caller turns the placement into a root position).
+    pose_mean : (P,) float64
+        Posterior-mean pose over the retained leaves.
+    placement : (3,) float64
+        ``(dx, dy, s)``, full-resolution pixels.
+    distance : float
+        Best full-resolution silhouette distance.
+    confidence : float
+        ``exp(-d^2 / (2 sigma^2))`` at full resolution, in [0, 1].
+    visibility : (N_PARTS,) float32
+        Visible fraction of each part in the MAP template.
+    evaluations : tuple of int
+        Distance evaluations per level (Table 2).
+    reinitialised : bool
+    """
+
+    leaf: int
+    pose_map: NDArray[np.float64]
+    pose_mean: NDArray[np.float64]
+    placement: NDArray[np.float64]
+    distance: float
+    confidence: float
+    visibility: NDArray[np.float32]
+    evaluations: tuple[int, ...]
+    reinitialised: bool
+
+
+def initial_state(placement: NDArray[np.float64] | None = None, reinits: int = 0) -> FilterState:
+    """The state before the first frame (or after a loss): no leaf information."""
+    p = np.array([0.0, 0.0, 1.0]) if placement is None else np.asarray(placement, np.float64)
+    return FilterState(np.zeros(0, np.int64), np.zeros(0), p, reinits=reinits)
+
+
+def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> NDArray[np.float64]:
+    """Prior over all leaves (eq. 2, 5, 13, 14).
+
+    Returns
+    -------
+    (NL,) float64, sums to 1.
+    """
+    nl = db.n_leaves
+    if len(state.leaves) == 0:  # no history: faces the camera first (front/back resolved so)
+        prior = db.leaf_facing.astype(np.float64)
+        if not prior.any():
+            prior[:] = 1.0
+        return prior / prior.sum()
+    prior = np.zeros(nl)
+    m2 = np.where(state.occluded, params.occlusion_m**2, 1.0)  # eq. 14
+    inv_var = 1.0 / (db.sigma_part.astype(np.float64) ** 2 * m2)  # (N_PARTS,)
+    for leaf, w in zip(state.leaves, state.weights, strict=True):
+        # eq. 13: Gaussian around the previous pose, over the leaf's pose-space neighbours
+        g = np.exp(-0.5 * db.nbr_dpart[leaf].astype(np.float64) @ inv_var)
+        g /= g.sum()
+        a, b = db.trans_ptr[leaf], db.trans_ptr[leaf + 1]
+        hw = params.hist_weight if b > a else 0.0
+        prior[db.nbr_idx[leaf]] += w * (1.0 - hw) * g
+        if hw:
+            prior[db.trans_idx[a:b]] += w * hw * db.trans_p[a:b]
+    prior *= 1.0 - params.uniform_mass
+    prior += params.uniform_mass / nl
+    return prior / prior.sum()
+
+
+def _offsets(step_px: float, step_s: float, nx: int, ns: int) -> NDArray[np.float64]:
+    """Placement offsets ``(ddx, 0, ds)`` of a small search grid (``ds`` relative)."""
+    kx = np.arange(nx) - (nx - 1) / 2
+    ks = np.arange(ns) - (ns - 1) / 2
+    dx, ds = np.meshgrid(kx * step_px, ks * step_s, indexing="ij")
+    out = np.zeros((dx.size, 3))
+    out[:, 0] = dx.ravel()
+    out[:, 2] = ds.ravel()
+    return out
+
+
+def _eval_level(db: FilterDB, feats: LevelFeatures, level: int, nodes: NDArray[np.int64],
+                centers: NDArray[np.float64], offsets: NDArray[np.float64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Distances of every node at every placement ``center + offset``.
+
+    Returns
+    -------
+    d : (n, G) float64
+    places : (n, G, 3) float64
+        The full-resolution placements evaluated.
+    """
+    sc = db.level_scale[level]
+    places = centers[:, None, :] + offsets[None, :, :]
+    places[..., 2] = centers[:, None, 2] * (1.0 + offsets[None, :, 2])
+    tr = places.reshape(-1, 3).copy()
+    tr[:, :2] *= sc
+    ids = np.repeat(nodes, len(offsets))
+    center = ((db.center[0] + 0.5) * sc - 0.5, (db.center[1] + 0.5) * sc - 0.5)  # pixel-centre convention
+    d = evaluate_templates(feats, db.level_runs[level], ids, tr, center)
+    return d.reshape(len(nodes), len(offsets)), places
+
+
+def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
+    n = len(poses)
+    q = matrix_to_quat(rotvec_to_matrix(poses[:, 3:].reshape(n, -1, 3)))  # (n, R, 4)
+    q = np.where((np.einsum("nrc,rc->nr", q, q[0]) < 0)[..., None], -q, q)  # same hemisphere
+    qm = np.einsum("n,nrc->rc", w, q)
+    out = np.empty(POSE_SIZE)
+    out[:3] = w @ poses[:, :3]
+    out[3:] = matrix_to_rotvec(quat_to_matrix(qm)).reshape(-1)
+    return out
+
+
+def _placement_cost(places: NDArray[np.float64], pred: NDArray[np.float64], params: FilterParams
+                    ) -> NDArray[np.float64]:
+    """Negative log prior of placements around the predicted one (Gaussian in shift and scale)."""
+    return 0.5 * (((places[..., 0] - pred[0]) / params.placement_sigma_px) ** 2
+                  + ((places[..., 2] / pred[2] - 1.0) / params.placement_sigma_scale) ** 2)
+
+
+def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
+         observed_placement: NDArray[np.float64] | None = None) -> tuple[FilterState, Estimate]:
+    """One frame of tree-based filtering.
+
+    Parameters
+    ----------
+    state : FilterState
+    db : FilterDB
+    features : list of LevelFeatures
+        The observation, coarse to fine (:func:`tracker_service.features.preprocess`).
+    params : FilterParams
+    observed_placement : (3,) float, optional
+        Placement measured directly from the silhouette (feet line and body centre); blended into
+        the prediction, and used alone after (re-)initialisation.
+
+    Returns
+    -------
+    state : FilterState
+    estimate : Estimate
+    """
+    fresh = len(state.leaves) == 0
+    pred = state.placement + 0.5 * state.velocity
+    if observed_placement is not None:
+        obs = np.asarray(observed_placement, np.float64)
+        pred = obs if fresh else params.observation_weight * obs + (1 - params.observation_weight) * pred
+    prior = predict_leaves(state, db, params)
+    tree = db.tree
+    n_levels = tree.n_levels
+    nodes = np.arange(tree.level_sizes[0], dtype=np.int64)
+    centers = np.repeat(pred[None], len(nodes), axis=0)
+    evals: list[int] = []
+    post = np.zeros(0)
+    node_place = centers
+    cost = np.zeros(0)
+    for lvl in range(n_levels):
+        node_prior = np.bincount(db.leaf_anc[lvl], weights=prior, minlength=tree.level_sizes[lvl])[nodes]
+        shrink = 0.5**lvl
+        grid = params.grid[lvl]
+        offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
+        d, places = _eval_level(db, features[lvl], lvl, nodes, centers, offs)
+        evals.append(d.size)
+        total = 0.5 * (d / params.sigma[lvl]) ** 2 + _placement_cost(places, pred, params)  # eq. 6 x placement prior
+        best = np.argmin(total, axis=1)
+        rows = np.arange(len(nodes))
+        cost = total[rows, best]
+        node_place = places[rows, best]
+        logpost = np.log(np.maximum(node_prior, 1e-300)) - cost  # eq. 1
+        post = np.exp(logpost - logpost.max())
+        post /= post.sum()
+        if lvl < n_levels - 1:
+            keep = np.flatnonzero(post >= params.keep_rel * post.max())
+            keep = keep[np.argsort(-post[keep])][: params.max_keep[lvl]]
+            kids = [tree.children(lvl, int(nodes[k])) for k in keep]
+            centers = np.concatenate([np.repeat(node_place[k][None], len(c), axis=0) for k, c in zip(keep, kids,
+                                                                                               strict=True)])
+            nodes = np.concatenate(kids)
+    leaves = nodes
+    order = np.argsort(-post)
+    # refine the placement of the best leaves at full resolution
+    top = order[: params.refine]
+    offs = _offsets(2.0, 0.01, 3, 3)
+    d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
+    evals[-1] += d_ref.size
+    total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _placement_cost(places, pred, params)
+    best = np.argmin(total, axis=1)
+    rows = np.arange(len(top))
+    lp = np.log(np.maximum(post[top], 1e-300)) + cost[top] - total[rows, best]
+    k = int(np.argmax(lp))
+    map_leaf = int(leaves[top[k]])
+    place = places[k, best[k]]
+    dist = float(d_ref[k, best[k]])
+    sup = order[: params.support]
+    w = post[sup] / post[sup].sum()
+    sup_leaves = leaves[sup]
+    poses = db.leaf_poses[sup_leaves].astype(np.float64)
+    vis = db.leaf_visible[map_leaf]
+    misses = state.misses + 1 if dist > params.lost_distance else 0
+    reinit = misses >= params.lost_frames
+    vel = 0.5 * state.velocity + 0.5 * (place - state.placement) if not fresh else np.zeros(3)
+    new_state = FilterState(sup_leaves, w, place, vel, vis <= 0.0, misses, state.reinits)
+    if reinit:
+        new_state = initial_state(place, state.reinits + 1)
+    est = Estimate(
+        leaf=map_leaf, pose_map=db.leaf_poses[map_leaf].astype(np.float64), pose_mean=_mean_pose(poses, w),
+        placement=place, distance=dist,
+        confidence=float(np.exp(-0.5 * (dist / params.sigma[-1]) ** 2)),
+        visibility=vis.astype(np.float32), evaluations=tuple(evals), reinitialised=reinit,
+    )
+    return new_state, est
+
+
+def with_occlusion(state: FilterState, occluded: NDArray[np.bool_]) -> FilterState:
+    """Override the occlusion flags (for DM1 vs DM2 comparisons: all False disables eq. 14)."""
+    return replace(state, occluded=np.asarray(occluded, bool))

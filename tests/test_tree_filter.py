@@ -1,0 +1,115 @@
+"""Template database build, on-disk format and the tree-based filter on a small fixture database
+(a few real takes, one body model), tracked from capsule silhouettes of another body."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from protocol import fk
+from protocol.mocap_data import IndexEntry
+from tracker_service.body_models import body_model
+from tracker_service.camera import default_camera
+from tracker_service.db_build import DbBuildConfig, build_filter_db, heading_of, set_heading, training_motions
+from tracker_service.features import preprocess
+from tracker_service.placement import observed_placement, placement_to_root
+from tracker_service.silhouette_render import render_silhouette
+from tracker_service.template_db import DatabaseError, load_db, save_db
+from tracker_service.tree_filter import FilterParams, initial_state, predict_leaves, step
+
+TAKES = ("dataset-2_raise-up-both-hands_normal_001.bvh", "dataset-2_raise-up-both-hands_active_062.bvh",
+         "dataset-2_raise-up-right-hand_normal_001.bvh", "dataset-1_bye_normal_001.bvh")
+
+
+@pytest.fixture(scope="module")
+def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    body = body_model("mMA").body
+    entries = [e for e in mocap_index if e.path.split("/")[-1] in TAKES]
+    motions = training_motions(body, entries)
+    cfg = DbBuildConfig(yaw_offsets_deg=(0.0,), level_thresholds=(0.02, 0.008, 0.004))
+    db, stats = build_filter_db(motions, body, default_camera(), cfg, rng=np.random.default_rng(1))
+    path = save_db(tmp_path_factory.mktemp("db") / "mMA", db, body, default_camera(), {"stats": stats})
+    return db, body, motions, stats, path
+
+
+def test_build_statistics_and_tree(small_db) -> None:  # type: ignore[no-untyped-def]
+    db, _, motions, stats, _ = small_db
+    assert stats["frames"] == sum(int(m.valid.sum()) for m in motions)
+    assert 0 < stats["poses"] < stats["frames"]
+    sizes = db.tree.level_sizes
+    assert sizes[0] < sizes[1] <= sizes[2] <= stats["poses"]
+    assert db.leaf_poses.shape == (sizes[2], 60)
+    # transition rows are distributions; neighbours start with the leaf itself
+    rows = np.diff(db.trans_ptr)
+    for leaf in np.flatnonzero(rows)[:50]:
+        assert db.trans_p[db.trans_ptr[leaf]: db.trans_ptr[leaf + 1]].sum() == pytest.approx(1.0, abs=1e-5)
+    assert np.mean(db.nbr_idx[:, 0] == np.arange(len(db.nbr_idx))) > 0.99
+    assert np.all(db.sigma_part > 0)
+    assert np.all((db.leaf_visible >= 0) & (db.leaf_visible <= 1))
+
+
+def test_prior_is_a_distribution_and_follows_the_state(small_db) -> None:  # type: ignore[no-untyped-def]
+    db, *_ = small_db
+    p0 = predict_leaves(initial_state(), db, FilterParams())
+    assert p0.sum() == pytest.approx(1.0) and np.all(p0[~db.leaf_facing] == 0)
+    st = initial_state()
+    st = type(st)(np.array([5]), np.array([1.0]), st.placement)
+    p1 = predict_leaves(st, db, FilterParams())
+    assert p1.sum() == pytest.approx(1.0)
+    assert p1[5] > 10 * np.median(p1)  # mass stays near the previous leaf
+    # eq. 14: occluding every part widens the dynamics
+    occ = type(st)(st.leaves, st.weights, st.placement, occluded=np.ones(15, bool))
+    p2 = predict_leaves(occ, db, FilterParams())
+    assert p2[5] < p1[5]
+
+
+def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-untyped-def]
+    db, body, motions, _, _ = small_db
+    subject = body_model("mLA").body
+    cam = default_camera()
+    m = motions[0]
+    poses = m.poses.copy()
+    poses = set_heading(poses, heading_of(poses) - heading_of(poses[:1])[0])
+    truth = fk(poses, subject)
+    st = initial_state()
+    errs = []
+    for f in range(0, len(poses), 2):
+        mask = render_silhouette(truth[f], subject.capsule_radii, cam)
+        st, est = step(st, db, preprocess(mask), FilterParams(), observed_placement(mask, cam))
+        pose = est.pose_map.copy()
+        pose[:3] = placement_to_root(est.placement, pose[:3], cam)
+        j = fk(pose, body)
+        errs.append(np.linalg.norm((j - j[0]) - (truth[f] - truth[f, 0]), axis=1).mean())
+        assert np.linalg.norm(pose[:3] - truth[f, 0]) < 0.25
+        assert 0.0 <= est.confidence <= 1.0 and len(est.evaluations) == 3
+    assert np.mean(errs) < 0.08  # the take is in the database: tracked within a few cm
+
+
+def test_database_round_trip_and_damage(small_db, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    db, body, _, _, path = small_db
+    loaded = load_db(path)
+    assert loaded.body.name == body.name
+    np.testing.assert_array_equal(loaded.db.leaf_poses, db.leaf_poses)
+    np.testing.assert_array_equal(loaded.db.level_runs[2].data, db.level_runs[2].data)
+    assert loaded.db.tree.level_sizes == db.tree.level_sizes
+    with pytest.raises(DatabaseError, match="build-db"):
+        load_db(tmp_path / "missing")
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(path, bad)
+    f = bad / "leaf_poses.npy"
+    f.write_bytes(f.read_bytes()[:-40])  # truncated
+    with pytest.raises(DatabaseError, match="truncated|corrupt|shape"):
+        load_db(bad)
+    shutil.rmtree(bad)
+    shutil.copytree(path, bad)
+    raw = bytearray((bad / "trans_p.npy").read_bytes())
+    raw[-3] ^= 0xFF  # flipped bits
+    (bad / "trans_p.npy").write_bytes(bytes(raw))
+    with pytest.raises(DatabaseError, match="checksum"):
+        load_db(bad)
+    man = (bad / "manifest.json").read_text().replace('"version": 1', '"version": 0')
+    (bad / "manifest.json").write_text(man)
+    with pytest.raises(DatabaseError, match="stale"):
+        load_db(bad)

@@ -100,7 +100,7 @@ def test_database_round_trip_and_damage(small_db, tmp_path: Path) -> None:  # ty
     shutil.copytree(path, bad)
     f = bad / "leaf_poses.npy"
     f.write_bytes(f.read_bytes()[:-40])  # truncated
-    with pytest.raises(DatabaseError, match="truncated|corrupt|shape"):
+    with pytest.raises(DatabaseError, match=r"truncated|corrupt|shape"):
         load_db(bad)
     shutil.rmtree(bad)
     shutil.copytree(path, bad)

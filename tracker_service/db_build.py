@@ -117,11 +117,10 @@ def set_heading(poses: NDArray[np.float64], yaw: NDArray[np.float64]) -> NDArray
 
 
 def _centred_takes(motions: Sequence[Motion], yaw_offsets: Sequence[float]
-                   ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
+                   ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """All valid frames, each take turned so its mean heading faces the camera, times the yaw
-    offsets. Returns poses (N, P), take id (N,) and a "next frame is the successor" flag (N,)."""
-    poses, take, succ = [], [], []
-    tid = 0
+    offsets. Returns poses (N, P) and a "the next row is this frame's successor" flag (N,)."""
+    poses, succ = [], []
     for m in motions:
         p = m.poses
         h = heading_of(p)
@@ -131,12 +130,10 @@ def _centred_takes(motions: Sequence[Motion], yaw_offsets: Sequence[float]
             assert m.valid is not None
             ok = m.valid
             poses.append(q[ok])
-            take.append(np.full(int(ok.sum()), tid))
             nxt = np.zeros(len(p), bool)
             nxt[:-1] = ok[:-1] & ok[1:]
             succ.append(nxt[ok])
-            tid += 1
-    return np.concatenate(poses), np.concatenate(take), np.concatenate(succ)
+    return np.concatenate(poses), np.concatenate(succ)
 
 
 def _level_cameras(camera: Camera) -> list[Camera]:
@@ -257,7 +254,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     cam = camera or default_camera()
     stats: dict[str, float] = {}
     t0 = time.perf_counter()
-    poses, take, succ = _centred_takes(motions, config.yaw_offsets_deg)
+    poses, succ = _centred_takes(motions, config.yaw_offsets_deg)
     stats["frames"] = len(poses)
     pr = prune_poses(poses, config.threshold_deg, compare_heading=True)
     kept = pr.kept if config.max_poses is None else pr.kept[: config.max_poses]

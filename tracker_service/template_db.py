@@ -181,7 +181,8 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
                                                 "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")})
         body = Body(name=man["body"]["name"], offsets=np.array(arrays["body_offsets"]),
                     capsule_radii=np.array(arrays["body_capsule_radii"]), measurements=man["body"]["measurements"])
-        cam = Camera(**man["camera"] | {"pose": np.array(arrays["camera_pose"]), "dist": np.array(man["camera"]["dist"])})
+        cam = Camera(**man["camera"] | {"pose": np.array(arrays["camera_pose"]),
+                                        "dist": np.array(man["camera"]["dist"])})
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:

@@ -109,7 +109,7 @@ def test_database_round_trip_and_damage(small_db, tmp_path: Path) -> None:  # ty
     (bad / "trans_p.npy").write_bytes(bytes(raw))
     with pytest.raises(DatabaseError, match="checksum"):
         load_db(bad)
-    man = (bad / "manifest.json").read_text().replace('"version": 1', '"version": 0')
+    man = (bad / "manifest.json").read_text().replace('"version": 2', '"version": 1')
     (bad / "manifest.json").write_text(man)
     with pytest.raises(DatabaseError, match="stale"):
         load_db(bad)

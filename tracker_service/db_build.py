@@ -302,14 +302,13 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         _, counts, areas = render_labels_with_areas(j, radii, cam)
         vis[k] = counts / np.maximum(areas, 1)
     nbr_idx, nbr_dpart = _neighbours(leaf_poses, config.neighbours)
-    facing = np.abs(heading_of(leaf_poses)) < np.radians(90)
     level_runs = tuple(
         RunSet([runs[lvl].runs(int(t)) for t in tree.node_template[lvl]]) for lvl in range(tree.n_levels)
     )
     db = FilterDB(
         tree=tree, level_runs=level_runs, level_scale=tuple(c.width / cam.width for c in cams),
         center=(cam.cx, cam.cy), leaf_poses=leaf_poses.astype(np.float32), leaf_visible=vis,
-        leaf_anc=anc, leaf_facing=facing, trans_ptr=trans_ptr, trans_idx=dst.astype(np.int64), trans_p=trans_p,
+        leaf_anc=anc, leaf_heading=heading_of(leaf_poses).astype(np.float32), trans_ptr=trans_ptr, trans_idx=dst.astype(np.int64), trans_p=trans_p,
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
     )
     stats["total_s"] = time.perf_counter() - t0

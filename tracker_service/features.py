@@ -48,13 +48,17 @@ DISTANCES: Final[tuple[str, ...]] = ("xor", "cwxor", "nwxor")
 LEVEL_SIZES: Final[tuple[tuple[int, int], ...]] = ((80, 60), (160, 120), (320, 240))
 
 
-def pyramid(mask: NDArray[np.bool_], sizes: tuple[tuple[int, int], ...] = LEVEL_SIZES) -> list[NDArray[np.bool_]]:
-    """Down-sample a silhouette to each pyramid level by area averaging (>= 50 % coverage).
+def pyramid(mask: NDArray[np.bool_], sizes: tuple[tuple[int, int], ...] = LEVEL_SIZES,
+            coverage: float = 0.35) -> list[NDArray[np.bool_]]:
+    """Down-sample a silhouette to each pyramid level by area averaging.
 
     Parameters
     ----------
     mask : (H, W) bool
     sizes : tuple of (width, height)
+    coverage : float
+        Fraction of a coarse pixel that must be covered. Below one half so that limbs thinner
+        than a coarse pixel survive, as they do in templates rendered directly at that level.
 
     Returns
     -------
@@ -66,7 +70,7 @@ def pyramid(mask: NDArray[np.bool_], sizes: tuple[tuple[int, int], ...] = LEVEL_
         if (w, h) == (mask.shape[1], mask.shape[0]):
             out.append(mask.astype(bool))
         else:
-            out.append(cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA) >= 0.5)
+            out.append(cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA) >= coverage)
     return out
 
 

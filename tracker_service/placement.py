@@ -56,8 +56,8 @@ def observed_placement(mask: NDArray[np.bool_], camera: Camera, foot_margin_px: 
     return np.array([dx, 0.0, s])
 
 
-def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float64], camera: Camera
-                      ) -> NDArray[np.float64]:
+def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float64], camera: Camera,
+                      body_scale: float = 1.0) -> NDArray[np.float64]:
     """World root position of a template root drawn at ``root_ref`` and seen at ``placement``.
 
     Parameters
@@ -67,6 +67,9 @@ def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float
     root_ref : (3,) float
         The template's root in the world (``x = z = 0``, its own height).
     camera : Camera
+    body_scale : float
+        Size of the subject relative to the templates' body: a subject ``k`` times larger seen at
+        template scale ``s`` stands at depth ``k d_ref / s``.
 
     Returns
     -------
@@ -78,6 +81,6 @@ def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float
     d_ref = float(camera.depth(root_ref))
     u = camera.cx + dx + s * (u_ref - camera.cx)
     v = camera.cy + dy + s * (v_ref - camera.cy)
-    d = d_ref / max(s, 1e-6)
+    d = body_scale * d_ref / max(s, 1e-6)
     cam_pt = np.array([(u - camera.cx) * d / camera.fx, -(v - camera.cy) * d / camera.fy, -d, 1.0])
     return (camera.pose @ cam_pt)[:3]

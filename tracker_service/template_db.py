@@ -28,7 +28,7 @@ __all__ = ["DB_FORMAT", "DB_VERSION", "DatabaseError", "LoadedDatabase", "defaul
 
 DB_FORMAT = "mocap-template-db"
 #: Bump on any change of the arrays' meaning; older folders are then reported as stale.
-DB_VERSION = 1
+DB_VERSION = 2
 _REBUILD = "rebuild it with: mocap-tracker build-db --out {path}"
 
 
@@ -74,7 +74,7 @@ def _arrays(db: FilterDB, body: Body, camera: Camera) -> dict[str, NDArray[Any]]
         out[f"runs_data_{lvl}"] = db.level_runs[lvl].data
         out[f"runs_ptr_{lvl}"] = db.level_runs[lvl].ptr
     out["tree_template_leaf"] = t.template_leaf
-    for name in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_facing", "trans_ptr", "trans_idx", "trans_p",
+    for name in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr", "trans_idx", "trans_p",
                  "nbr_idx", "nbr_dpart", "sigma_part"):
         out[name] = np.asarray(getattr(db, name))
     out["body_offsets"] = body.offsets
@@ -177,7 +177,7 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
         runs = tuple(RunSet(data=arrays[f"runs_data_{lvl}"], ptr=arrays[f"runs_ptr_{lvl}"]) for lvl in range(n_levels))
         db = FilterDB(tree=tree, level_runs=runs, level_scale=tuple(man["level_scale"]),
                       center=(float(man["center"][0]), float(man["center"][1])),
-                      **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_facing", "trans_ptr",
+                      **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
                                                 "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")})
         body = Body(name=man["body"]["name"], offsets=np.array(arrays["body_offsets"]),
                     capsule_radii=np.array(arrays["body_capsule_radii"]), measurements=man["body"]["measurements"])

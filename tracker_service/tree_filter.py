@@ -57,8 +57,8 @@ class FilterDB:
         Visible fraction of each part in each leaf's template.
     leaf_anc : (L, NL) int64
         Ancestor node of each leaf at every level (the last row is ``arange(NL)``).
-    leaf_facing : (NL,) bool
-        Leaves facing the camera (for the initial front/back choice).
+    leaf_heading : (NL,) float32
+        Heading (yaw, radians; 0 = facing the camera) of each leaf's pose.
     trans_ptr, trans_idx, trans_p : CSR (NL + 1,), (E,), (E,)
         Leaf transition histograms (row-normalised) from the recordings' frame order.
     nbr_idx : (NL, K) int64
@@ -76,7 +76,7 @@ class FilterDB:
     leaf_poses: NDArray[np.float32]
     leaf_visible: NDArray[np.float32]
     leaf_anc: NDArray[np.int64]
-    leaf_facing: NDArray[np.bool_]
+    leaf_heading: NDArray[np.float32]
     trans_ptr: NDArray[np.int64]
     trans_idx: NDArray[np.int64]
     trans_p: NDArray[np.float32]
@@ -87,6 +87,11 @@ class FilterDB:
     @property
     def n_leaves(self) -> int:
         return int(self.leaf_poses.shape[0])
+
+    @property
+    def leaf_facing(self) -> NDArray[np.bool_]:
+        """(NL,) bool: leaves facing the camera (|heading| < 90 degrees)."""
+        return np.abs(self.leaf_heading) < np.pi / 2
 
 
 @dataclass(frozen=True)
@@ -111,7 +116,10 @@ class FilterParams:
     observation_weight : float
         Weight of the placement measured from the silhouette against the motion prediction.
     uniform_mass : float
-        Prior mass spread uniformly over all leaves (re-acquisition).
+        Prior mass spread uniformly over the leaves whose heading is within ``max_turn`` of the
+        current estimate (re-acquisition of the pose; a person does not turn round in a frame).
+    max_turn : float
+        Heading range (radians) of the uniform mass around the current heading.
     hist_weight : float
         Weight of the transition histograms against the Gaussian dynamics.
     occlusion_m : float
@@ -137,6 +145,7 @@ class FilterParams:
     placement_sigma_scale: float = 0.03
     observation_weight: float = 0.7
     uniform_mass: float = 0.05
+    max_turn: float = 1.0
     hist_weight: float = 0.5
     occlusion_m: float = 5.0
     support: int = 48
@@ -244,8 +253,12 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
         prior[db.nbr_idx[leaf]] += w * (1.0 - hw) * g
         if hw:
             prior[db.trans_idx[a:b]] += w * hw * db.trans_p[a:b]
+    # re-acquisition mass, restricted to headings near the current one
+    cur = db.leaf_heading[state.leaves].astype(np.float64)
+    mean_heading = np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur))
+    near = np.abs(np.angle(np.exp(1j * (db.leaf_heading - mean_heading)))) < params.max_turn
     prior *= 1.0 - params.uniform_mass
-    prior += params.uniform_mass / nl
+    prior[near] += params.uniform_mass / max(int(near.sum()), 1)
     return prior / prior.sum()
 
 

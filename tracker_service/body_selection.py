@@ -1,0 +1,83 @@
+"""Choosing the subject's body model from the family by silhouette match (Okada & Stenger §3,
+Fig. 6: "the model silhouette is then used to automatically select the best matching body model").
+
+During the first frames every candidate body is tried: the templates are scaled to the size that
+body would have at the subject's physical depth (from the silhouette's feet line, so body height
+is *not* absorbed by the scale) and the best silhouette match (nwXOR) is found; the candidate with
+the lowest mean distance wins. When no database was built for the winner, the tracker keeps the
+database's templates and scales them by ``height(winner) / height(database body)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.skeleton import Body
+
+from .body_models import body_model
+from .features import LevelFeatures
+from .tree_filter import FilterDB, FilterParams, initial_state, step
+
+__all__ = ["BodyChoice", "score_bodies"]
+
+
+def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], observed: NDArray[np.float64],
+                 db: FilterDB, db_body: Body, params: FilterParams,
+                 candidates: Sequence[str]) -> dict[str, list[float]]:
+    """Append each candidate's best silhouette distance for this frame.
+
+    For every candidate of height ``h_c`` the database's templates are scaled by
+    ``k = h_c / h_db`` -- the size that body has at the depth measured from the silhouette's feet
+    line -- and the tree filter is run from scratch; its best full-resolution distance is the
+    candidate's score. A body of the wrong size can only be fitted with a bent or stretched pose,
+    so it scores worse.
+
+    Parameters
+    ----------
+    scores : dict[str, list[float]]
+        Distances so far (not modified).
+    features : list of LevelFeatures
+        The observation's pyramid.
+    observed : (3,) float
+        Placement measured from the silhouette (feet line), for the database's body size.
+    db : FilterDB
+    db_body : Body
+    params : FilterParams
+    candidates : sequence of str
+        Body model names.
+
+    Returns
+    -------
+    dict[str, list[float]]
+    """
+    out = {k: list(v) for k, v in scores.items()}
+    h_db = db_body.height
+    for name in candidates:
+        k = body_model(name).body.height / h_db
+        obs = np.array(observed, dtype=np.float64, copy=True)
+        obs[2] *= k
+        _, est = step(initial_state(obs), db, features, params, obs)
+        out.setdefault(name, []).append(float(est.distance))
+    return out
+
+
+@dataclass(frozen=True)
+class BodyChoice:
+    """The chosen body model and its size relative to the database's body."""
+
+    body: Body
+    scale: float
+    mean_distance: float
+
+    @staticmethod
+    def from_scores(scores: dict[str, list[float]], db_body: Body) -> BodyChoice:
+        """Lowest mean distance wins; no scores keeps the database's body."""
+        if not scores:
+            return BodyChoice(db_body, 1.0, float("nan"))
+        name = min(scores, key=lambda n: float(np.mean(scores[n])))
+        body = body_model(name).body
+        return BodyChoice(body, body.height / db_body.height, float(np.mean(scores[name])))

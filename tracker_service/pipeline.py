@@ -1,0 +1,231 @@
+"""The tracker's per-frame pipeline as a pure state machine: frame -> silhouette -> features ->
+tree filter -> pose, joints, visibility and confidence.
+
+Phases (``TrackerState.phase``):
+
+``learning``      collecting empty-room frames for the background model (§2.2)
+``waiting``       no person, or the silhouette is not yet near the image centre (§3: "pose
+                  estimation is started when the center of the observed silhouette is close to the
+                  image center")
+``initialising``  the first frames: the filter starts facing the camera (front/back resolved so)
+                  and the body model is chosen from the family by silhouette match
+``tracking``      normal operation; after ``lost_frames`` bad matches the filter re-initialises
+                  (counted in ``reinits``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.kinematics import fk
+from protocol.skeleton import N_PARTS, Body
+
+from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
+from .body_selection import BodyChoice, score_bodies
+from .camera import Camera
+from .features import Distance, preprocess
+from .placement import observed_placement, placement_to_root
+from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
+
+__all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
+
+Phase = Literal["learning", "waiting", "initialising", "tracking"]
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Pipeline options (paper defaults: nwXOR, alpha = 5, beta = 1, m = 5).
+
+    Attributes
+    ----------
+    distance : {'nwxor', 'cwxor', 'xor'}
+    alpha, beta : float
+        Weights of eq. 9 and eq. 10.
+    occlusion : bool
+        Occlusion-aware dynamics (eq. 14, "DM2"); False is "DM1".
+    filter : FilterParams
+    background : BackgroundParams
+    background_frames : int
+        Empty frames learned before tracking (0: the caller provides the model).
+    background_rate : float
+        Adaptive update rate of background pixels (0: off).
+    start_radius : float
+        Tracking starts when the silhouette's centre is within this fraction of the image width
+        from the image centre.
+    init_frames : int
+        Frames of the initialising phase (body-model selection averages over them).
+    body_candidates : tuple of str
+        Body models considered by the selection (empty: keep the database's body).
+    use_mean_pose : bool
+        Publish the posterior-mean pose instead of the MAP pose.
+    """
+
+    distance: Distance = "nwxor"
+    alpha: float = 5.0
+    beta: float = 1.0
+    occlusion: bool = True
+    filter: FilterParams = field(default_factory=FilterParams)
+    background: BackgroundParams = field(default_factory=BackgroundParams)
+    background_frames: int = 10
+    background_rate: float = 0.0
+    start_radius: float = 0.25
+    init_frames: int = 5
+    body_candidates: tuple[str, ...] = ()
+    use_mean_pose: bool = False
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """Everything carried from one frame to the next."""
+
+    phase: Phase
+    background: BackgroundModel | None
+    learning: tuple[NDArray[np.uint8], ...]
+    filter: FilterState
+    body: Body
+    body_scale: float
+    body_scores: dict[str, list[float]]
+    frames_in_phase: int = 0
+    reinits: int = 0
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Output of :func:`process_frame` for one frame.
+
+    Attributes
+    ----------
+    phase : str
+    silhouette : (H, W) bool or None
+    pose : (P,) float64 or None
+        World pose (root placed in the scene), None until tracking.
+    joints : (J, 3) float64 or None
+    visibility : (N_PARTS,) float32
+    confidence : float
+    distance : float
+    evaluations : tuple of int
+    stage_ms : dict[str, float]
+        ``background``, ``preprocess``, ``estimate`` and ``total`` milliseconds.
+    reinitialised : bool
+    body_changed : bool
+        The body model was (re)chosen in this frame.
+    """
+
+    phase: Phase
+    silhouette: NDArray[np.bool_] | None
+    pose: NDArray[np.float64] | None
+    joints: NDArray[np.float64] | None
+    visibility: NDArray[np.float32]
+    confidence: float
+    distance: float
+    evaluations: tuple[int, ...]
+    stage_ms: dict[str, float]
+    reinitialised: bool = False
+    body_changed: bool = False
+
+
+def new_state(body: Body, background: BackgroundModel | None = None) -> TrackerState:
+    """Initial state; ``learning`` unless a background model is given."""
+    return TrackerState(phase="waiting" if background is not None else "learning", background=background,
+                        learning=(), filter=initial_state(), body=body, body_scale=1.0, body_scores={})
+
+
+def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
+    xs = np.nonzero(mask)[1]
+    return bool(len(xs)) and abs(float(xs.mean()) - mask.shape[1] / 2) <= radius * mask.shape[1]
+
+
+def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, db_body: Body, camera: Camera,
+                  config: TrackerConfig) -> tuple[TrackerState, FrameResult]:
+    """Advance the tracker by one camera frame.
+
+    Parameters
+    ----------
+    state : TrackerState
+    frame : (H, W, 3) uint8
+        BGR frame at the camera's resolution.
+    db : FilterDB
+    db_body : Body
+        Body model the database was rendered with.
+    camera : Camera
+        The database's camera (frame size must match).
+    config : TrackerConfig
+
+    Returns
+    -------
+    state : TrackerState
+    result : FrameResult
+    """
+    t0 = time.perf_counter()
+    if frame.ndim != 3 or frame.shape[:2] != (camera.height, camera.width) or frame.dtype != np.uint8:
+        raise ValueError(f"frame must be ({camera.height}, {camera.width}, 3) uint8, got {frame.shape} {frame.dtype}")
+    empty_vis = np.zeros(N_PARTS, np.float32)
+    if state.phase == "learning":
+        frames = (*state.learning, frame)
+        if len(frames) >= max(config.background_frames, 2):
+            bg = learn_background(np.stack(frames))
+            state = replace(state, phase="waiting", background=bg, learning=())
+        else:
+            state = replace(state, learning=frames)
+        ms = {"background": (time.perf_counter() - t0) * 1e3}
+        return state, FrameResult(state.phase, None, None, None, empty_vis, 0.0, float("nan"), (), ms)
+    assert state.background is not None
+    mask = subtract(state.background, frame, config.background)
+    if config.background_rate > 0:
+        fg = mask if mask.any() else np.zeros_like(mask)
+        state = replace(state, background=update_background(state.background, frame, fg, config.background_rate))
+    t1 = time.perf_counter()
+    ms = {"background": (t1 - t0) * 1e3}
+    if state.phase == "waiting":
+        if not _near_centre(mask, config.start_radius):
+            return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
+        state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={})
+    if not mask.any():  # the person left: wait for them to come back to the centre
+        state = replace(state, phase="waiting", filter=initial_state())
+        return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
+    feats = preprocess(mask, config.distance, config.alpha, config.beta)
+    t2 = time.perf_counter()
+    obs = observed_placement(mask, camera)
+    if obs is not None:
+        obs[2] *= state.body_scale  # a subject k times the templates' size looks k times larger at that depth
+    fstate = state.filter
+    if not config.occlusion:
+        fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
+    fstate, est = step(fstate, db, feats, config.filter, obs)
+    t3 = time.perf_counter()
+    pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
+    body_changed = False
+    phase: Phase = state.phase
+    frames_in_phase = state.frames_in_phase + 1
+    scores = state.body_scores
+    body, scale = state.body, state.body_scale
+    if phase == "initialising" and config.body_candidates and obs is not None:
+        raw = obs.copy()
+        raw[2] /= state.body_scale
+        sel_feats = preprocess(mask, "xor")  # symmetric: nwXOR's cheap contour misses favour small bodies
+        scores = score_bodies(scores, sel_feats, raw, db, db_body, replace(config.filter, sigma=(0.02, 0.015, 0.012)),
+                              config.body_candidates)
+    if phase == "initialising" and frames_in_phase >= config.init_frames:
+        if config.body_candidates:
+            choice: BodyChoice = BodyChoice.from_scores(scores, db_body)
+            body, scale = choice.body, choice.scale
+            body_changed = body.name != state.body.name
+            if body_changed:  # restart the filter at the new size
+                fstate = initial_state(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
+        phase = "tracking"
+        frames_in_phase = 0
+    pose[:3] = placement_to_root(est.placement, pose[:3], camera, body_scale=scale)
+    joints = fk(pose, body)
+    reinits = state.reinits + int(est.reinitialised)
+    state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
+                    frames_in_phase=frames_in_phase, reinits=reinits)
+    t4 = time.perf_counter()
+    ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
+           "total": (t4 - t0) * 1e3}
+    return state, FrameResult(phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
+                              est.evaluations, ms, est.reinitialised, body_changed)

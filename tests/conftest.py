@@ -23,3 +23,25 @@ def mocap_index() -> list[IndexEntry]:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+TAKES = ("dataset-2_raise-up-both-hands_normal_001.bvh", "dataset-2_raise-up-both-hands_active_062.bvh",
+         "dataset-2_raise-up-right-hand_normal_001.bvh", "dataset-1_bye_normal_001.bvh")
+
+
+@pytest.fixture(scope="session")
+def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """A small template database (4 real takes, body mMA) saved to a temporary folder:
+    ``(FilterDB, Body, motions, stats, path)``."""
+    from tracker_service.body_models import body_model
+    from tracker_service.camera import default_camera
+    from tracker_service.db_build import DbBuildConfig, build_filter_db, training_motions
+    from tracker_service.template_db import save_db
+
+    body = body_model("mMA").body
+    entries = [e for e in mocap_index if e.path.split("/")[-1] in TAKES]
+    motions = training_motions(body, entries)
+    cfg = DbBuildConfig(yaw_offsets_deg=(0.0,), level_thresholds=(0.02, 0.008, 0.004))
+    db, stats = build_filter_db(motions, body, default_camera(), cfg, rng=np.random.default_rng(1))
+    path = save_db(tmp_path_factory.mktemp("db") / "mMA", db, body, default_camera(), {"stats": stats})
+    return db, body, motions, stats, path

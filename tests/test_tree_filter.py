@@ -7,29 +7,14 @@ import numpy as np
 import pytest
 
 from protocol import fk
-from protocol.mocap_data import IndexEntry
 from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
-from tracker_service.db_build import DbBuildConfig, build_filter_db, heading_of, set_heading, training_motions
+from tracker_service.db_build import heading_of, set_heading
 from tracker_service.features import preprocess
 from tracker_service.placement import observed_placement, placement_to_root
 from tracker_service.silhouette_render import render_silhouette
-from tracker_service.template_db import DatabaseError, load_db, save_db
+from tracker_service.template_db import DatabaseError, load_db
 from tracker_service.tree_filter import FilterParams, initial_state, predict_leaves, step
-
-TAKES = ("dataset-2_raise-up-both-hands_normal_001.bvh", "dataset-2_raise-up-both-hands_active_062.bvh",
-         "dataset-2_raise-up-right-hand_normal_001.bvh", "dataset-1_bye_normal_001.bvh")
-
-
-@pytest.fixture(scope="module")
-def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    body = body_model("mMA").body
-    entries = [e for e in mocap_index if e.path.split("/")[-1] in TAKES]
-    motions = training_motions(body, entries)
-    cfg = DbBuildConfig(yaw_offsets_deg=(0.0,), level_thresholds=(0.02, 0.008, 0.004))
-    db, stats = build_filter_db(motions, body, default_camera(), cfg, rng=np.random.default_rng(1))
-    path = save_db(tmp_path_factory.mktemp("db") / "mMA", db, body, default_camera(), {"stats": stats})
-    return db, body, motions, stats, path
 
 
 def test_build_statistics_and_tree(small_db) -> None:  # type: ignore[no-untyped-def]

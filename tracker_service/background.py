@@ -26,7 +26,10 @@ _EPS = 1e-6
 
 @dataclass(frozen=True)
 class BackgroundParams:
-    """Thresholds of :func:`subtract` (defaults tuned on the synthetic scene; see docs).
+    """Thresholds of :func:`subtract`. Defaults from a grid search on the synthetic scene (3 subjects,
+    rooms and lightings; 36 frames): mean silhouette IoU 0.93 (worst frame 0.88) against the
+    scene's true silhouette, versus 0.76 for the first guess (chroma 4, brightness 4 sigma,
+    shadows down to 0.45).
 
     Attributes
     ----------
@@ -44,14 +47,14 @@ class BackgroundParams:
         Morphological opening / closing kernel sizes (pixels at the working resolution).
     """
 
-    chroma_threshold: float = 4.0
-    shadow_ratio: float = 0.45
-    highlight_ratio: float = 1.45
-    brightness_sigmas: float = 4.0
+    chroma_threshold: float = 3.0
+    shadow_ratio: float = 0.6
+    highlight_ratio: float = 1.2
+    brightness_sigmas: float = 2.0
     dark_level: float = 25.0
     min_area_frac: float = 0.002
     open_px: int = 3
-    close_px: int = 7
+    close_px: int = 5
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,8 @@ Fig. 6: "the model silhouette is then used to automatically select the best matc
 During the first frames every candidate body is tried: the templates are scaled to the size that
 body would have at the subject's physical depth (from the silhouette's feet line, so body height
 is *not* absorbed by the scale) and the best silhouette match (nwXOR) is found; the candidate with
-the lowest mean distance wins. When no database was built for the winner, the tracker keeps the
+the lowest mean distance wins, among the models whose height is close to the stature measured
+from the silhouette (when the head is its top). When no database was built for the winner, the tracker keeps the
 database's templates and scales them by ``height(winner) / height(database body)``.
 """
 
@@ -19,10 +20,11 @@ from numpy.typing import NDArray
 from protocol.skeleton import Body
 
 from .body_models import body_model
+from .camera import Camera
 from .features import LevelFeatures
 from .tree_filter import FilterDB, FilterParams, initial_state, step
 
-__all__ = ["BodyChoice", "score_bodies"]
+__all__ = ["BodyChoice", "measured_stature", "score_bodies"]
 
 
 def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], observed: NDArray[np.float64],
@@ -65,6 +67,21 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
     return out
 
 
+def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], camera: Camera,
+                     db_body: Body) -> float:
+    """Standing height (metres) of the subject from the silhouette's vertical extent.
+
+    The feet line gives the depth (``observed`` is the database body's placement at that depth:
+    ``d = d_ref / s``); valid while the head is the top of the silhouette (the caller checks).
+    """
+    ys = np.flatnonzero(mask.any(axis=1))
+    if len(ys) == 0:
+        return float("nan")
+    ref = np.array([0.0, db_body.standing_root_height(), 0.0])
+    d = float(camera.depth(ref)) / max(float(observed[2]), 1e-6)
+    return float((ys[-1] - ys[0] + 1) * d / camera.fy)
+
+
 @dataclass(frozen=True)
 class BodyChoice:
     """The chosen body model and its size relative to the database's body."""
@@ -74,10 +91,17 @@ class BodyChoice:
     mean_distance: float
 
     @staticmethod
-    def from_scores(scores: dict[str, list[float]], db_body: Body) -> BodyChoice:
-        """Lowest mean distance wins; no scores keeps the database's body."""
+    def from_scores(scores: dict[str, list[float]], db_body: Body, stature: float = float("nan"),
+                    tolerance_m: float = 0.06) -> BodyChoice:
+        """Lowest mean distance wins among the candidates whose height is within ``tolerance_m`` of
+        the measured ``stature`` (all candidates when it is unknown); no scores keeps the
+        database's body."""
         if not scores:
             return BodyChoice(db_body, 1.0, float("nan"))
-        name = min(scores, key=lambda n: float(np.mean(scores[n])))
+        names = list(scores)
+        if np.isfinite(stature):
+            near = [n for n in names if abs(body_model(n).body.height - stature) <= tolerance_m]
+            names = near or sorted(names, key=lambda n: abs(body_model(n).body.height - stature))[:3]
+        name = min(names, key=lambda n: float(np.mean(scores[n])))
         body = body_model(name).body
         return BodyChoice(body, body.height / db_body.height, float(np.mean(scores[name])))

@@ -139,6 +139,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seconds to replay (default: 4)")
     dp.add_argument("--json", action="store_true", help="print only a JSON summary on stdout")
     dp.set_defaults(func=_cmd_demo)
+
+    from .render_cli import add_render_parser
+    from .tracker_cli import add_tracker_parsers
+
+    add_tracker_parsers(sub, [common])
+    add_render_parser(sub, [common])
     return parser
 
 
@@ -161,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except NotImplementedError as exc:
         print(f"{PROG} {args.command}: not available yet: {exc}", file=sys.stderr)
-    except (OSError, ValueError, ConnectionError, ProtocolError) as exc:
+    except (OSError, ValueError, ConnectionError, ProtocolError, RuntimeError) as exc:
         print(f"{PROG} {args.command}: {exc}", file=sys.stderr)
     return 1
 

@@ -308,7 +308,8 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     db = FilterDB(
         tree=tree, level_runs=level_runs, level_scale=tuple(c.width / cam.width for c in cams),
         center=(cam.cx, cam.cy), leaf_poses=leaf_poses.astype(np.float32), leaf_visible=vis,
-        leaf_anc=anc, leaf_heading=heading_of(leaf_poses).astype(np.float32), trans_ptr=trans_ptr, trans_idx=dst.astype(np.int64), trans_p=trans_p,
+        leaf_anc=anc, leaf_heading=heading_of(leaf_poses).astype(np.float32), trans_ptr=trans_ptr,
+        trans_idx=dst.astype(np.int64), trans_p=trans_p,
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
     )
     stats["total_s"] = time.perf_counter() - t0

@@ -23,10 +23,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.kinematics import fk
-from protocol.skeleton import N_PARTS, Body
+from protocol.skeleton import JOINT_INDEX, N_PARTS, Body
 
 from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
-from .body_selection import BodyChoice, score_bodies
+from .body_selection import BodyChoice, measured_stature, score_bodies
 from .camera import Camera
 from .features import Distance, preprocess
 from .placement import observed_placement, placement_to_root
@@ -90,6 +90,7 @@ class TrackerState:
     body: Body
     body_scale: float
     body_scores: dict[str, list[float]]
+    statures: tuple[float, ...] = ()
     frames_in_phase: int = 0
     reinits: int = 0
 
@@ -184,7 +185,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if state.phase == "waiting":
         if not _near_centre(mask, config.start_radius):
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
-        state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={})
+        state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={},
+                        statures=())
     if not mask.any():  # the person left: wait for them to come back to the centre
         state = replace(state, phase="waiting", filter=initial_state())
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
@@ -203,6 +205,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     phase: Phase = state.phase
     frames_in_phase = state.frames_in_phase + 1
     scores = state.body_scores
+    statures = state.statures
     body, scale = state.body, state.body_scale
     if phase == "initialising" and config.body_candidates and obs is not None:
         raw = obs.copy()
@@ -210,9 +213,13 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         sel_feats = preprocess(mask, "xor")  # symmetric: nwXOR's cheap contour misses favour small bodies
         scores = score_bodies(scores, sel_feats, raw, db, db_body, replace(config.filter, sigma=(0.02, 0.015, 0.012)),
                               config.body_candidates)
+        j_db = fk(pose, db_body)
+        if int(np.argmax(j_db[:, 1])) == JOINT_INDEX["head_top"]:  # head on top: the height is measurable
+            statures = (*statures, measured_stature(mask, raw, camera, db_body))
     if phase == "initialising" and frames_in_phase >= config.init_frames:
         if config.body_candidates:
-            choice: BodyChoice = BodyChoice.from_scores(scores, db_body)
+            choice: BodyChoice = BodyChoice.from_scores(
+                scores, db_body, float(np.median(statures)) if statures else float("nan"))
             body, scale = choice.body, choice.scale
             body_changed = body.name != state.body.name
             if body_changed:  # restart the filter at the new size
@@ -223,7 +230,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     joints = fk(pose, body)
     reinits = state.reinits + int(est.reinitialised)
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
-                    frames_in_phase=frames_in_phase, reinits=reinits)
+                    statures=statures, frames_in_phase=frames_in_phase, reinits=reinits)
     t4 = time.perf_counter()
     ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
            "total": (t4 - t0) * 1e3}

@@ -80,8 +80,10 @@ def _as_bgr(img: Any, size: tuple[int, int] | None) -> NDArray[np.uint8] | None:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     elif img.ndim != 3 or img.shape[2] != 3:
         return None
-    if img.dtype != np.uint8:
-        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if img.dtype != np.uint8:  # 16-bit or float images: stretch to 8 bits
+        f = img.astype(np.float64)
+        lo, hi = float(f.min()), float(f.max())
+        img = ((f - lo) * (255.0 / max(hi - lo, 1e-12))).astype(np.uint8)
     if size is not None and (img.shape[1], img.shape[0]) != size:
         img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(img)

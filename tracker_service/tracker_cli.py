@@ -1,0 +1,204 @@
+"""``mocap-tracker build-db``, ``run`` and ``eval``: argument parsing and wiring (the I/O edge).
+
+``build-db``  builds the template database of one or more body models (cached under ``out/db``).
+``run``       the tracker daemon: a frame source -> pipeline -> Zenoh (see :mod:`.tracker_app`).
+``eval``      renders the synthetic scene for a motion, tracks it and prints the JSON contract of
+              :func:`tracker_service.evaluate.evaluate_motion`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from protocol.session import add_zenoh_args
+
+__all__ = ["DEFAULT_SCRIPT", "add_tracker_parsers", "ensure_db"]
+
+log = logging.getLogger(__name__)
+
+_REPO = Path(__file__).resolve().parents[1]
+#: Motion of ``--source synthetic`` without a file: a shipped gesture script.
+DEFAULT_SCRIPT = _REPO / "protocol" / "scripts" / "crouch.toml"
+_DEFAULT_BODY = "mMA"
+
+
+def _bodies(text: str) -> list[str]:
+    from .body_models import BODY_MODELS
+
+    names = [m.name for m in BODY_MODELS]
+    if text == "all":
+        return names
+    out = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [t for t in out if t not in names]
+    if bad or not out:
+        raise argparse.ArgumentTypeError(
+            f"unknown body model(s) {bad or text!r}; choose from {', '.join(names)} or all")
+    return out
+
+
+def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> None:
+    """Add ``build-db``, ``run`` and ``eval`` to the ``mocap-tracker`` subparsers."""
+    bp = sub.add_parser("build-db", parents=list(parents), help="build the template database (cached in out/db)",
+                        description="Poses of the shared recordings (held-out takes excluded, see docs/TRACKER.md) "
+                                    "pruned at 5 degrees, headings augmented, rendered as run-length silhouettes "
+                                    "on the 80x60/160x120/320x240 pyramid, clustered by Algorithm 1 into a "
+                                    "3-level tree, with leaf transition histograms. One folder per body model.")
+    bp.add_argument("--mocap", metavar="DIR", help="recordings folder (default: ../shared/mocap or $MOCAP_DATA)")
+    bp.add_argument("--bodies", type=_bodies, default=[_DEFAULT_BODY], metavar="NAMES|all",
+                    help=f"comma-separated body models, or all 30 (default: {_DEFAULT_BODY})")
+    bp.add_argument("--scripts", metavar="DIR", action="append", default=[],
+                    help="also add the poses of every gesture script (*.toml) in DIR (repeatable)")
+    bp.add_argument("--out", metavar="PATH", help="output folder (default: out/db/<body>; with several "
+                                                   "bodies, a parent folder)")
+    bp.add_argument("--max-poses", type=int, metavar="N", help="cap the pruned pose set (quick builds)")
+    bp.add_argument("--takes", type=int, metavar="N", help="use only the first N training takes (quick builds)")
+    bp.set_defaults(func=_cmd_build_db)
+
+    def tracker_opts(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--db", metavar="PATH", help="template database folder (default: out/db/mMA, "
+                                                    "built on first use)")
+        p.add_argument("--body", default="auto", metavar="auto|NAME",
+                       help="body model: auto (chosen by silhouette match on the first frames) or a name")
+        p.add_argument("--estimator", choices=["tree"], default="tree", help="pose estimator (default: tree)")
+        p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
+                       help="silhouette distance (default: xor, the most accurate in our measurements; the "
+                            "paper's choice is nwxor)")
+        p.add_argument("--no-occlusion", action="store_true", help="disable eq. 14 (dynamic model DM1)")
+
+    rp = sub.add_parser("run", parents=list(parents), help="the tracker daemon: frames -> poses over Zenoh",
+                        description="Track the person in front of the camera and publish PoseFrames on "
+                                    "mocap/tracker/<id>/pose, BodyInfo on .../body (also answered to queries), "
+                                    "TrackerStatus on .../status and a liveliness token .../alive.")
+    rp.add_argument("--source", default="synthetic", metavar="SPEC",
+                    help="synthetic[:BVH|SCRIPT] (default), camera[:INDEX], video:PATH or frames:DIR")
+    tracker_opts(rp)
+    rp.add_argument("--id", default="default", help="tracker id in the key expressions (default: default)")
+    rp.add_argument("--frames", type=int, metavar="N", help="stop after N input frames")
+    rp.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    rp.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
+    rp.add_argument("--as-fast-as-possible", action="store_true",
+                    help="do not pace file/synthetic sources at their frame rate")
+    add_zenoh_args(rp, "publisher")
+    rp.set_defaults(func=_cmd_run)
+
+    ep = sub.add_parser("eval", parents=list(parents), help="track a motion rendered as synthetic video; print errors",
+                        description="Render the synthetic scene for a BVH recording or gesture script (a subject "
+                                    "unlike the database's body models), run the whole pipeline from pixels and "
+                                    "print one JSON object: mpjpe_cm, root_error_cm, mpjpe_2d_px, "
+                                    "frames_within_10cm, reacquire_s_max, fps, ms_per_frame, "
+                                    "distance_evals_per_level, templates, estimator, distance, body_selected, frames.")
+    src = ep.add_mutually_exclusive_group(required=True)
+    src.add_argument("--bvh", metavar="FILE")
+    src.add_argument("--script", metavar="FILE")
+    tracker_opts(ep)
+    ep.add_argument("--frames", type=int, metavar="N", help="evaluate at most N frames")
+    ep.add_argument("--seed", type=int, default=0, help="scene seed (subject, room, lighting, noise)")
+    ep.add_argument("--force-loss-every", type=float, default=0.0, metavar="S",
+                    help="force a tracking loss every S seconds and measure re-acquisition (default: never)")
+    ep.add_argument("--json", action="store_true", help="print only the JSON object")
+    ep.set_defaults(func=_cmd_eval)
+
+
+def ensure_db(path: str | None, body: str = _DEFAULT_BODY, build_if_missing: bool = True) -> Any:
+    """Load a database, building the default one first when it is missing."""
+    from .template_db import DatabaseError, default_db_dir, load_db
+
+    p = Path(path) if path else default_db_dir(body)
+    try:
+        return load_db(p)
+    except DatabaseError as exc:
+        if path or not build_if_missing or (p / "manifest.json").exists():
+            raise
+        log.warning("%s; building it now (a few minutes, cached for next time)", exc)
+        _build(body, p, None, [], None, None)
+        return load_db(p)
+
+
+def _build(body_name: str, out: Path, mocap: str | None, scripts: list[str], max_poses: int | None,
+           takes: int | None) -> dict[str, Any]:
+    import os
+
+    from .body_models import body_model
+    from .camera import default_camera
+    from .db_build import DbBuildConfig, build_filter_db, is_held_out, training_motions
+    from .template_db import save_db
+
+    if mocap:
+        os.environ["MOCAP_DATA"] = mocap
+    from protocol.mocap_data import index_entries
+
+    body = body_model(body_name).body
+    entries = [e for i, e in enumerate(index_entries()) if not is_held_out(i)]
+    if takes:
+        entries = entries[:takes]
+    script_files = sorted(p for d in scripts for p in Path(d).glob("*.toml"))
+    t0 = time.perf_counter()
+    motions = training_motions(body, entries, scripts=script_files, progress=True)
+    db, stats = build_filter_db(motions, body, default_camera(), DbBuildConfig(max_poses=max_poses), progress=True)
+    meta = {"stats": stats, "takes": [e.path for e in entries], "scripts": [str(s) for s in script_files],
+            "build_s": time.perf_counter() - t0}
+    save_db(out, db, body, default_camera(), meta)
+    return meta
+
+
+def _cmd_build_db(args: argparse.Namespace) -> int:
+    from .template_db import default_db_dir
+
+    for name in args.bodies:
+        out = Path(args.out) / name if (args.out and len(args.bodies) > 1) else Path(args.out or default_db_dir(name))
+        meta = _build(name, out, args.mocap, args.scripts, args.max_poses, args.takes)
+        s = meta["stats"]
+        print(f"{name}: {int(s['poses'])} poses from {int(s['frames'])} frames; tree "
+              f"{int(s['level1_nodes'])}/{int(s['level2_nodes'])}/{int(s['level3_nodes'])} nodes; "
+              f"{meta['build_s']:.0f} s -> {out}")
+    return 0
+
+
+def _config(args: argparse.Namespace) -> Any:
+    from .body_models import BODY_MODELS
+    from .pipeline import TrackerConfig
+
+    names = [m.name for m in BODY_MODELS]
+    if args.body != "auto" and args.body not in names:
+        raise ValueError(f"unknown body model {args.body!r}; choose auto or one of {', '.join(names)}")
+    # auto: the family is scored on the first frames; NAME: that model (templates scaled to its height)
+    cands = tuple(names) if args.body == "auto" else (args.body,)
+    return TrackerConfig(distance=args.distance, occlusion=not args.no_occlusion, body_candidates=cands)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .sources import open_source, parse_source
+    from .tracker_app import run_tracker_cli
+
+    spec = parse_source(args.source)
+    loaded = ensure_db(args.db)
+    source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
+                         seed=args.seed)
+    return run_tracker_cli(args, loaded, _config(args), source)
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from protocol.motion import load_motion
+
+    from .evaluate import EvalOptions, evaluate_motion
+
+    path = args.bvh or args.script
+    motion = load_motion(path, fps=30.0)
+    loaded = ensure_db(args.db)
+    cfg = _config(args)
+    opts = EvalOptions(frames=args.frames, seed=args.seed, force_loss_every_s=args.force_loss_every)
+
+    def progress(done: int, total: int) -> None:
+        if not args.json and sys.stderr.isatty():
+            print(f"\r{done}/{total} frames", end="", file=sys.stderr)
+
+    result = evaluate_motion(motion, loaded, cfg, opts, progress)
+    print(json.dumps(result) if args.json else json.dumps(result, indent=1))
+    return 0

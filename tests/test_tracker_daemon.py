@@ -1,0 +1,122 @@
+"""End to end: ``mocap-tracker run`` on a short synthetic clip (pyrender scene, fixture database)
+publishes over loopback Zenoh; a subscriber here decodes poses with sane 3D joints, the body
+queryable answers, and SIGTERM stops it cleanly. Also ``mocap-tracker eval --json``."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from protocol.codec import decode
+from protocol.keys import body_key, pose_key, status_key
+from protocol.messages import BodyInfo, PoseFrame, TrackerStatus
+from protocol.session import build_config, free_tcp_endpoint
+from protocol.skeleton import JOINT_INDEX
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT = REPO / "protocol" / "scripts" / "crouch.toml"
+
+pytestmark = pytest.mark.zenoh
+
+
+def test_daemon_publishes_sane_poses(small_db) -> None:  # type: ignore[no-untyped-def]
+    path = small_db[4]
+    ep = free_tcp_endpoint()
+    cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{SCRIPT}", "--db", str(path),
+           "--body", "mMA", "--id", "e2e", "--frames", "70", "--listen", ep, "-q"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    poses: list[PoseFrame] = []
+    statuses: list[TrackerStatus] = []
+    body: BodyInfo | None = None
+    conf = build_config(mode="peer", connect=[ep], listen=[free_tcp_endpoint()])
+    try:
+        with zenoh.open(conf) as session:
+            sub = session.declare_subscriber(pose_key("e2e"))
+            ssub = session.declare_subscriber(status_key("e2e"))
+            try:
+                deadline = time.monotonic() + 60
+                while time.monotonic() < deadline and proc.poll() is None:
+                    s = sub.try_recv()
+                    if s is not None:
+                        poses.append(decode(s.payload.to_bytes(), PoseFrame))
+                    t = ssub.try_recv()
+                    if t is not None:
+                        statuses.append(decode(t.payload.to_bytes(), TrackerStatus))
+                    if body is None and len(poses) > 2:
+                        for reply in session.get(body_key("e2e"), timeout=2.0):
+                            if reply.ok is not None:
+                                body = decode(reply.ok.payload.to_bytes(), BodyInfo)
+                    if s is None and t is None:
+                        time.sleep(0.005)
+            finally:
+                sub.undeclare()
+                ssub.undeclare()
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    assert proc.returncode == 0, err
+    assert len(poses) >= 20, err
+    seqs = [p.seq for p in poses]
+    assert seqs == sorted(seqs)
+    for p in poses:
+        j = p.joints
+        assert np.all(np.isfinite(j))
+        assert j[JOINT_INDEX["head_top"], 1] > j[JOINT_INDEX["pelvis"], 1] > 0.2  # upright, above the floor
+        # the person stands on the stage in front of the camera (origin, camera at z = 3 m)
+        assert abs(j[JOINT_INDEX["pelvis"], 2]) < 1.0 and abs(j[JOINT_INDEX["pelvis"], 0]) < 1.0
+        assert 1.0 < j[JOINT_INDEX["head_top"], 1] < 2.2
+        assert p.estimator == "tree" and 0 <= p.confidence <= 1
+    assert body is not None and body.body_model == "mMA"
+    assert statuses and statuses[-1].state.value in ("tracking", "stopped")
+
+
+def test_daemon_stops_on_sigterm(small_db) -> None:  # type: ignore[no-untyped-def]
+    path = small_db[4]
+    cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{SCRIPT}", "--db", str(path),
+           "--body", "mMA", "--listen", free_tcp_endpoint(), "-q"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        time.sleep(4.0)
+        assert proc.poll() is None
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=5)
+        assert time.monotonic() - t0 < 2.0
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_missing_database_is_a_clear_error(tmp_path: Path) -> None:
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "run", "--db", str(tmp_path / "nope"),
+                        "--frames", "1"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert "build-db" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_eval_prints_the_json_contract(small_db) -> None:  # type: ignore[no-untyped-def]
+    path = small_db[4]
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "eval", "--script", str(SCRIPT), "--db", str(path),
+                        "--body", "mMA", "--frames", "40", "--json", "-q"], cwd=REPO, capture_output=True, text=True,
+                       timeout=180)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    for key in ("mpjpe_cm", "root_error_cm", "mpjpe_2d_px", "frames_within_10cm", "reacquire_s_max", "fps",
+                "ms_per_frame", "distance_evals_per_level", "templates", "estimator", "distance", "body_selected",
+                "frames"):
+        assert key in out
+    assert out["frames"] == 40 and out["estimator"] == "tree"
+    assert set(out["ms_per_frame"]) == {"preprocess", "estimate", "total"}
+    assert out["mpjpe_cm"] is not None and 0 < out["mpjpe_cm"] < 100
+    assert len(out["distance_evals_per_level"]) == 3

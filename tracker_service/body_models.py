@@ -35,9 +35,12 @@ from protocol.skeleton import CAPSULES, JOINT_INDEX, Body, body_from_measurement
 __all__ = [
     "BODY_MODELS",
     "GROUPS",
+    "SECTION_RATIO",
     "BodyModel",
     "Group",
     "body_model",
+    "build_body",
+    "ellipse_axes",
     "estimate_weight",
     "markdown_table",
     "model_body_info",
@@ -104,7 +107,7 @@ _CHILD_SIZE: Final[dict[str, tuple[int, int, int, int]]] = {  # height: chest, w
 _CHILDREN: Final[tuple[str, ...]] = ("PA", "SA", "SB", "MA", "MB", "LA")
 
 #: Width / depth ratio of the chest, waist and hip cross-sections per group.
-_SECTION_RATIO: Final[dict[Group, tuple[float, float, float]]] = {
+SECTION_RATIO: Final[dict[Group, tuple[float, float, float]]] = {
     "men": (1.38, 1.30, 1.40), "women": (1.30, 1.38, 1.35), "children": (1.25, 1.20, 1.25)}
 #: Girth ratios: upper arm, forearm, wrist, neck to chest; thigh, knee, calf, ankle to hip.
 _GIRTH_RATIO: Final[dict[Group, tuple[float, ...]]] = {
@@ -134,9 +137,9 @@ def estimate_weight(height_m: float, chest_m: float, waist_m: float, hip_m: floa
     return float(_DENSITY * _SHAPE_FACTOR * height_m * area)
 
 
-def _ellipse_axes(girth: float, ratio: float) -> tuple[float, float]:
-    """Half width and half depth of an ellipse with perimeter ``girth`` and width/depth ``ratio``
-    (Ramanujan's perimeter approximation)."""
+def ellipse_axes(girth: float, ratio: float) -> tuple[float, float]:
+    """Half width and half depth (metres) of an elliptical cross-section with perimeter ``girth``
+    and width/depth ``ratio`` (Ramanujan's perimeter approximation)."""
     r = ratio
     b = girth / (np.pi * (3 * (r + 1) - np.sqrt((3 * r + 1) * (r + 3))))
     return r * b, b
@@ -144,10 +147,10 @@ def _ellipse_axes(girth: float, ratio: float) -> tuple[float, float]:
 
 def _capsule_radii(group: Group, h: float, chest: float, waist: float, hip: float,
                    hip_half: float) -> NDArray[np.float64]:
-    rc, rw, rh = _SECTION_RATIO[group]
-    a_c, b_c = _ellipse_axes(chest, rc)
-    a_w, b_w = _ellipse_axes(waist, rw)
-    a_h, b_h = _ellipse_axes(hip, rh)
+    rc, rw, rh = SECTION_RATIO[group]
+    a_c, b_c = ellipse_axes(chest, rc)
+    a_w, b_w = ellipse_axes(waist, rw)
+    a_h, b_h = ellipse_axes(hip, rh)
     g_ua, g_fa, g_wr, g_nk = (k * chest for k in _GIRTH_RATIO[group][:4])
     g_th, g_kn, g_ca, g_an = (k * hip for k in _GIRTH_RATIO[group][4:])
     hb, hl, href = _HEAD[group]
@@ -155,7 +158,8 @@ def _capsule_radii(group: Group, h: float, chest: float, waist: float, hip: floa
     s = h / {"men": 1.70, "women": 1.58, "children": 1.20}[group]
     tau = 2 * np.pi
     rad = {
-        "pelvis": (float(np.clip(a_h - hip_half, 0.7 * b_h, b_h)),) * 2,
+        # the hips: at least a little wider than the thighs' tops, so the part shows at the sides
+        "pelvis": (float(np.clip(max(a_h - hip_half, 1.06 * g_th / tau), 0.7 * b_h, b_h)),) * 2,
         "abdomen": (np.sqrt(a_w * b_w), 0.95 * np.sqrt(a_c * b_c)),
         "thorax": (np.sqrt(a_c * b_c), 1.25 * g_nk / tau),
         "shoulders": (0.47 * b_c, 0.47 * b_c),
@@ -174,12 +178,36 @@ def _capsule_radii(group: Group, h: float, chest: float, waist: float, hip: floa
     return radii
 
 
-def _build_body(name: str, group: Group, h: float, chest: float, waist: float, hip: float) -> Body:
-    """Skeleton from :func:`body_from_measurements`, re-proportioned for the group, with radii from
-    :func:`_capsule_radii` and the crown of the skull at height ``h``."""
-    leg_ratio = 1.0 if group != "children" else float(np.interp(h, [1.10, 1.40], [0.92, 0.97]))
-    base = body_from_measurements(h, chest_m=chest, waist_m=waist, hip_m=hip,
-                                  shoulder_width_m=_SHOULDER_FRAC[group] * h, leg_ratio=leg_ratio, name=name)
+def build_body(name: str, group: Group, h: float, chest: float, waist: float, hip: float, *,
+               arm_ratio: float = 1.0, leg_ratio: float = 1.0, shoulder_frac: float | None = None) -> Body:
+    """A :class:`Body` with the family's proportions and radii for any measurements.
+
+    The skeleton comes from :func:`body_from_measurements` re-proportioned for the group (women:
+    wider hip joints; children: shorter legs, lower neck, larger head), the radii from the girths
+    (see the module docstring), and the crown of the skull capsule is placed at height ``h``.
+
+    Parameters
+    ----------
+    name : str
+    group : {"men", "women", "children"}
+    h, chest, waist, hip : float
+        Height and girths, metres.
+    arm_ratio, leg_ratio : float
+        Individual multipliers on the arm and leg lengths.
+    shoulder_frac : float, optional
+        Distance between the shoulder joints as a fraction of ``h`` (default per group).
+
+    Returns
+    -------
+    Body
+    """
+    if group not in GROUPS:
+        raise ValueError(f"unknown group {group!r}; choose from {GROUPS}")
+    if group == "children":
+        leg_ratio *= float(np.interp(h, [1.10, 1.40], [0.92, 0.97]))
+    sw = (shoulder_frac if shoulder_frac is not None else _SHOULDER_FRAC[group]) * h
+    base = body_from_measurements(h, chest_m=chest, waist_m=waist, hip_m=hip, shoulder_width_m=sw,
+                                  arm_ratio=arm_ratio, leg_ratio=leg_ratio, name=name)
     off = np.array(base.offsets)
     j = JOINT_INDEX
     if group == "women":  # wider hip-joint spacing
@@ -200,14 +228,14 @@ def _build_body(name: str, group: Group, h: float, chest: float, waist: float, h
     off[j["head_top"], 1] = max(h - skull_r - crown, 0.02 * h)
     weight = estimate_weight(h, chest, waist, hip)
     meas = {"height_m": h, "chest_m": chest, "waist_m": waist, "hip_m": hip,
-            "shoulder_width_m": _SHOULDER_FRAC[group] * h, "weight_kg": round(weight, 1)}
+            "shoulder_width_m": sw, "weight_kg": round(weight, 1)}
     return Body(name, off, radii, meas)
 
 
 def _family() -> tuple[BodyModel, ...]:
     models: list[BodyModel] = []
     for key in _MEN:
-        hc, cc = key
+        hc, cc = key[0], key[1]
         code, cm = _MEN_HEIGHT[hc]
         chest0, drop = _MEN_TYPE[cc]
         chest = chest0 + 2 * (code - 2)
@@ -215,14 +243,14 @@ def _family() -> tuple[BodyModel, ...]:
         hip = (chest + waist) / 2 + 6
         models.append(_model("men", hc, cc, f"{cc}{code}", cm, chest, waist, hip))
     for key in _WOMEN:
-        hc, cc = key
+        hc, cc = key[0], key[1]
         jcode, cm, w_adj, h_adj = _WOMEN_HEIGHT[hc]
         num = _WOMEN_BUST[cc]
         k = (num - 9) // 2
         models.append(_model("women", hc, cc, f"{num}A{jcode}", cm, 83 + 3 * k, 64 + 3 * k + w_adj,
                              91 + 2 * k + h_adj))
     for key in _CHILDREN:
-        hc, cc = key
+        hc, cc = key[0], key[1]
         cm, chest, waist, hip = _CHILD_SIZE[hc]
         extra = 4 if cc == "B" else 0
         models.append(_model("children", hc, cc, f"{cm}{cc}", cm, chest + extra, waist + extra + 1,
@@ -233,7 +261,7 @@ def _family() -> tuple[BodyModel, ...]:
 def _model(group: Group, hc: str, cc: str, jis: str, h_cm: float, chest_cm: float, waist_cm: float,
            hip_cm: float) -> BodyModel:
     name = f"{_PREFIX[group]}{hc}{cc}"
-    body = _build_body(name, group, h_cm / 100, chest_cm / 100, waist_cm / 100, hip_cm / 100)
+    body = build_body(name, group, h_cm / 100, chest_cm / 100, waist_cm / 100, hip_cm / 100)
     return BodyModel(name, group, hc, cc, jis, body)
 
 

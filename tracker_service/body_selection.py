@@ -24,7 +24,7 @@ from .camera import Camera
 from .features import LevelFeatures
 from .tree_filter import FilterDB, FilterParams, initial_state, step
 
-__all__ = ["BodyChoice", "measured_stature", "score_bodies"]
+__all__ = ["BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
 
 
 def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], observed: NDArray[np.float64],
@@ -80,6 +80,15 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     ref = np.array([0.0, db_body.standing_root_height(), 0.0])
     d = float(camera.depth(ref)) / max(float(observed[2]), 1e-6)
     return float((ys[-1] - ys[0] + 1) * d / camera.fy)
+
+
+def candidates_near(candidates: Sequence[str], height_m: float, tolerance_m: float = 0.08,
+                    at_least: int = 3) -> tuple[str, ...]:
+    """The candidates whose height is within ``tolerance_m`` of ``height_m`` (at least the
+    ``at_least`` nearest), so selection scores a handful of models per frame, not all 30."""
+    by_gap = sorted(candidates, key=lambda n: abs(body_model(n).body.height - height_m))
+    near = [n for n in by_gap if abs(body_model(n).body.height - height_m) <= tolerance_m]
+    return tuple(near if len(near) >= at_least else by_gap[:at_least])
 
 
 @dataclass(frozen=True)

@@ -133,7 +133,7 @@ class Camera:
         return self.width, self.height
 
     @property
-    def K(self) -> NDArray[np.float64]:  # noqa: N802 - the usual name of the intrinsic matrix
+    def K(self) -> NDArray[np.float64]:
         """(3, 3) float64 intrinsic matrix (OpenCV convention)."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 

@@ -26,7 +26,7 @@ from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, N_PARTS, Body
 
 from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
-from .body_selection import BodyChoice, measured_stature, score_bodies
+from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
 from .features import Distance, preprocess
 from .placement import observed_placement, placement_to_root
@@ -210,12 +210,13 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if phase == "initialising" and config.body_candidates and obs is not None:
         raw = obs.copy()
         raw[2] /= state.body_scale
+        if int(np.argmax(fk(pose, db_body)[:, 1])) == JOINT_INDEX["head_top"]:  # head on top: height measurable
+            statures = (*statures, measured_stature(mask, raw, camera, db_body))
+        ref = float(np.median(statures)) if statures else db_body.height
+        cands = candidates_near(config.body_candidates, ref)
         sel_feats = preprocess(mask, "xor")  # symmetric: nwXOR's cheap contour misses favour small bodies
         scores = score_bodies(scores, sel_feats, raw, db, db_body, replace(config.filter, sigma=(0.02, 0.015, 0.012)),
-                              config.body_candidates)
-        j_db = fk(pose, db_body)
-        if int(np.argmax(j_db[:, 1])) == JOINT_INDEX["head_top"]:  # head on top: the height is measurable
-            statures = (*statures, measured_stature(mask, raw, camera, db_body))
+                              cands)
     if phase == "initialising" and frames_in_phase >= config.init_frames:
         if config.body_candidates:
             choice: BodyChoice = BodyChoice.from_scores(

@@ -9,8 +9,9 @@ scanline kernels of :mod:`tracker_service._kernels` fill directly (no polygons, 
 capsule covers). The same intervals, merged per row, are the run-length contours ``(y, x_start,
 x_end)`` of the template database (Okada & Stenger Fig. 5, eq. 12) -- :func:`silhouette_runs`.
 
-Part labels (eq. 14's occlusion reasoning) z-buffer each capsule with its front-surface depth
-interpolated along its projected axis; ``visible_counts[p]`` is how many pixels part ``p`` owns.
+Part labels (eq. 14's occlusion reasoning) z-buffer each capsule with the depth of its front
+surface (centre depth and radius interpolated along the projected axis, lowered by the sphere /
+cylinder profile across it); ``visible_counts[p]`` is how many pixels part ``p`` owns.
 
 Every function has a plain numpy / OpenCV reference (``*_reference``: ``cv2.fillConvexPoly`` on a
 polygon of the two-circle hull, drawn capsule by capsule) that the tests hold it to.
@@ -72,9 +73,9 @@ def project_capsules(points: ArrayLike, radii: ArrayLike, camera: Camera) -> NDA
 
     Returns
     -------
-    (..., C, 8) float64, C-contiguous
-        ``(x1, y1, r1, x2, y2, r2, z1, z2)``: circle centres and radii in pixels and the
-        front-surface depth (metres) at both ends. Capsules that reach behind the near plane get
+    (..., C, 10) float64, C-contiguous
+        ``(x1, y1, r1, x2, y2, r2, z1, z2, R1, R2)``: circle centres and radii in pixels, the depth
+        of both end centres and the radii in metres. Capsules that reach behind the near plane get
         ``r1 = r2 = -1`` (skipped by the kernels).
     """
     ends = _endpoints(points)
@@ -93,12 +94,13 @@ def project_capsules(points: ArrayLike, radii: ArrayLike, camera: Camera) -> NDA
     cap_ok = np.all(ok, axis=-1, keepdims=True)
     rho = np.where(cap_ok, rho, -1.0)
     uv = np.where(cap_ok[..., None], uv, 0.0)
-    out = np.empty((*ends.shape[:-2], 8))
+    out = np.empty((*ends.shape[:-2], 10))
     out[..., 0:2] = uv[..., 0, :]
     out[..., 2] = rho[..., 0]
     out[..., 3:5] = uv[..., 1, :]
     out[..., 5] = rho[..., 1]
-    out[..., 6:8] = z - rad
+    out[..., 6:8] = z
+    out[..., 8:10] = rad
     return np.ascontiguousarray(out)
 
 
@@ -238,7 +240,8 @@ def silhouette_runs_batch(points: ArrayLike, radii: ArrayLike,
 
 
 # ---------------------------------------------------------------------------------- references
-def _capsule_mask_dense(cap: NDArray[np.float64], jj: NDArray[np.float64], ii: NDArray[np.float64]) -> NDArray[np.bool_]:
+def _capsule_mask_dense(cap: NDArray[np.float64], jj: NDArray[np.float64],
+                        ii: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Dense test of every pixel centre against the hull of the two circles of ``cap``: inside
     either circle, or inside the quadrilateral of the four outer tangent points."""
     (x1, y1, r1, x2, y2, r2) = cap[:6]
@@ -266,7 +269,7 @@ def render_silhouette_reference(points: ArrayLike, radii: ArrayLike, camera: Cam
     caps = project_capsules(points, radii, camera)
     ii, jj = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
     out = np.zeros((camera.height, camera.width), bool)
-    for cap in caps.reshape(-1, 8):
+    for cap in caps.reshape(-1, 10):
         if cap[2] > 0 and cap[5] > 0:
             out |= _capsule_mask_dense(cap, jj, ii)
     return out
@@ -280,7 +283,7 @@ def render_silhouette_cv2(points: ArrayLike, radii: ArrayLike, camera: Camera, s
     img = np.zeros((camera.height, camera.width), np.uint8)
     th = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
     ring = np.stack([np.cos(th), np.sin(th)], axis=1)
-    for cap in caps.reshape(-1, 8):
+    for cap in caps.reshape(-1, 10):
         if not (cap[2] > 0 and cap[5] > 0):
             continue
         pts = np.concatenate([cap[0:2] + max(cap[2] - 0.5, 0.1) * ring, cap[3:5] + max(cap[5] - 0.5, 0.1) * ring])
@@ -291,7 +294,8 @@ def render_silhouette_cv2(points: ArrayLike, radii: ArrayLike, camera: Camera, s
 
 def render_labels_reference(points: ArrayLike, radii: ArrayLike, camera: Camera,
                             parts: ArrayLike | None = None) -> tuple[NDArray[np.int8], NDArray[np.int64]]:
-    """Reference for :func:`render_labels`: dense capsule masks and a dense numpy z-buffer."""
+    """Reference for :func:`render_labels`: dense capsule masks and a dense numpy z-buffer (float32
+    depths, like the kernel)."""
     caps = project_capsules(points, radii, camera)
     part = CAPSULE_PART if parts is None else np.asarray(parts, dtype=np.int64)
     h, w = camera.height, camera.width
@@ -305,7 +309,11 @@ def render_labels_reference(points: ArrayLike, radii: ArrayLike, camera: Camera,
         ax, ay = cap[3] - cap[0], cap[4] - cap[1]
         l2 = ax * ax + ay * ay
         t = ((jj - cap[0]) * ax + (ii - cap[1]) * ay) / l2 if l2 > 1e-12 else np.zeros_like(jj)
-        z = (cap[6] + np.clip(t, 0.0, 1.0) * (cap[7] - cap[6])).astype(np.float32)
+        t = np.clip(t, 0.0, 1.0)
+        q2 = (jj - cap[0] - t * ax) ** 2 + (ii - cap[1] - t * ay) ** 2
+        rho = cap[2] + t * (cap[5] - cap[2])
+        prof = np.sqrt(np.maximum(1.0 - q2 / rho**2, 0.0))
+        z = (cap[6] + t * (cap[7] - cap[6]) - (cap[8] + t * (cap[9] - cap[8])) * prof).astype(np.float32)
         win = m & (z < zbuf)
         zbuf[win] = z[win]
         labels[win] = part[c]

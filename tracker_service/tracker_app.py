@@ -124,6 +124,8 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             entities.append(session.declare_queryable(body_key(tid), on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
             status_pub.put(status(TrackerState.STARTING))
+            log.info("publishing poses of tracker %r on %s (database %s, %d templates)", tid, pose_key(tid),
+                     loaded.body.name, loaded.db.n_leaves)
             body_pub.put(body_bytes[0])
             next_status = time.monotonic() + options.status_interval
             seq = 0

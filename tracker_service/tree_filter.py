@@ -134,6 +134,8 @@ class FilterParams:
         A frame whose best level-3 distance exceeds this counts as a miss.
     lost_frames : int
         Consecutive misses that trigger re-initialisation.
+    confidence_scale : float
+        Distance at which the reported confidence ``exp(-d^2 / (2 c^2))`` is 0.61.
     """
 
     sigma: tuple[float, ...] = (0.01, 0.008, 0.006)
@@ -151,8 +153,9 @@ class FilterParams:
     support: int = 48
     step_px: float = 8.0
     step_scale: float = 0.05
-    lost_distance: float = 0.6
+    lost_distance: float = 0.15
     lost_frames: int = 6
+    confidence_scale: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -203,7 +206,7 @@ class Estimate:
     distance : float
         Best full-resolution silhouette distance.
     confidence : float
-        ``exp(-d^2 / (2 sigma^2))`` at full resolution, in [0, 1].
+        ``exp(-d^2 / (2 c^2))`` of the full-resolution distance (``c = confidence_scale``), in [0, 1].
     visibility : (N_PARTS,) float32
         Visible fraction of each part in the MAP template.
     evaluations : tuple of int
@@ -398,7 +401,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     est = Estimate(
         leaf=map_leaf, pose_map=db.leaf_poses[map_leaf].astype(np.float64), pose_mean=_mean_pose(poses, w),
         placement=place, distance=dist,
-        confidence=float(np.exp(-0.5 * (dist / params.sigma[-1]) ** 2)),
+        confidence=float(np.exp(-0.5 * (dist / params.confidence_scale) ** 2)),
         visibility=vis.astype(np.float32), evaluations=tuple(evals), reinitialised=reinit,
     )
     return new_state, est

@@ -1,0 +1,141 @@
+"""Tracker benchmarks: accuracy from pixels on held-out takes (distances and dynamic models
+compared on the same frames), re-acquisition, speed per stage, the pyramid's speed-up and the
+database's memory.
+
+Usage::
+
+    .venv/bin/python bench/bench_tracker.py [--takes N] [--frames N] [--json]
+
+Needs the default database (``mocap-tracker build-db``; built on first use). Held-out takes are
+the recordings whose INDEX.tsv row is divisible by 5 (never in the database). Every configuration
+runs on the same rendered frames (same seeds). Not a test: it takes minutes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from protocol import fk
+from protocol.mocap_data import index_entries, mocap_root
+from protocol.motion import ground, load_motion
+from tracker_service.body_models import BODY_MODELS
+from tracker_service.camera import default_camera
+from tracker_service.db_build import is_held_out
+from tracker_service.evaluate import EvalOptions, evaluate_motion
+from tracker_service.features import preprocess
+from tracker_service.pipeline import TrackerConfig
+from tracker_service.placement import observed_placement
+from tracker_service.silhouette_distance import RunSet
+from tracker_service.silhouette_render import render_silhouette, silhouette_runs_batch
+from tracker_service.template_db import default_db_dir, load_db
+from tracker_service.tree_filter import FilterDB, FilterParams, initial_state, step
+from tracker_service.tracker_cli import ensure_db
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return float(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _no_pyramid(db: FilterDB, body: Any) -> FilterDB:
+    """The same tree with every level evaluated at 320x240 (prototype silhouettes re-rendered from
+    the pose of the leaf each prototype belongs to)."""
+    cam = default_camera()
+    runs = []
+    for lvl in range(db.tree.n_levels):
+        leaves = db.tree.template_leaf[db.tree.node_template[lvl]]
+        joints = fk(db.leaf_poses[leaves].astype(np.float64), body)
+        data, ptr = silhouette_runs_batch(joints, body.capsule_radii, cam)
+        runs.append(RunSet(data=data, ptr=ptr))
+    return replace(db, level_runs=tuple(runs), level_scale=(1.0,) * db.tree.n_levels)
+
+
+def pyramid_speedup(loaded: Any, n_frames: int = 60) -> dict[str, float]:
+    """Filter time per frame with and without the pyramid on the same capsule silhouettes."""
+    db_full = _no_pyramid(loaded.db, loaded.body)
+    cam = loaded.camera
+    entry = [e for i, e in enumerate(index_entries()) if is_held_out(i)][6]
+    subject = BODY_MODELS[7].body
+    m = load_motion(mocap_root() / entry.path, body=subject, fps=30)
+    truth = fk(ground(m.poses, subject), subject)[:n_frames]
+    times = {}
+    for name, db, sizes in (("pyramid", loaded.db, None), ("full_resolution", db_full, ((320, 240),) * 3)):
+        st = initial_state()
+        t_sum = 0.0
+        for j in truth:
+            mask = render_silhouette(j, subject.capsule_radii, cam)
+            obs = observed_placement(mask, cam)
+            t0 = time.perf_counter()
+            feats = preprocess(mask, "xor") if sizes is None else preprocess(mask, "xor", sizes=sizes)
+            st, _ = step(st, db, feats, FilterParams(), obs)
+            t_sum += time.perf_counter() - t0
+        times[name] = 1000 * t_sum / len(truth)
+    return {"pyramid_ms": round(times["pyramid"], 2), "full_resolution_ms": round(times["full_resolution"], 2),
+            "speedup": round(times["full_resolution"] / times["pyramid"], 2)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--takes", type=int, default=10, help="held-out takes to evaluate (spread over the list)")
+    ap.add_argument("--frames", type=int, default=150, help="frames per take")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    rss0 = _rss_mb()
+    loaded = ensure_db(None)
+    full = load_db(default_db_dir(), verify=False, mmap=False)
+    res: dict[str, Any] = {"machine": f"{platform.node()} {platform.machine()}", "python": platform.python_version(),
+                           "db_rss_mb": round(_rss_mb() - rss0, 1), "templates": loaded.db.n_leaves,
+                           "tree_levels": loaded.db.tree.level_sizes}
+    del full
+    held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
+    pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
+    configs = {
+        "xor_dm2": TrackerConfig(distance="xor"),
+        "cwxor_dm2": TrackerConfig(distance="cwxor"),
+        "nwxor_dm2": TrackerConfig(distance="nwxor"),
+        "xor_dm1": TrackerConfig(distance="xor", occlusion=False),
+    }
+    bodies = tuple(m.name for m in BODY_MODELS)
+    rows: dict[str, list[dict[str, Any]]] = {k: [] for k in configs}
+    for e in tqdm(pick, desc="held-out takes", disable=args.json):
+        motion = load_motion(mocap_root() / e.path, fps=30.0)
+        for name, cfg in configs.items():
+            out = evaluate_motion(motion, loaded, replace(cfg, body_candidates=bodies),
+                                  EvalOptions(frames=args.frames, seed=7, force_loss_every_s=3.0))
+            out["take"] = e.path
+            rows[name].append(out)
+    summary = {}
+    for name, rs in rows.items():
+        def avg(key: str, rs: list[dict[str, Any]] = rs) -> float:
+            v = [r[key] for r in rs if r[key] is not None]
+            return round(float(np.mean(v)), 2) if v else float("nan")
+
+        re = [r["reacquire_s_max"] for r in rs]
+        summary[name] = {"mpjpe_cm": avg("mpjpe_cm"), "root_error_cm": avg("root_error_cm"),
+                         "mpjpe_2d_px": avg("mpjpe_2d_px"), "frames_within_10cm": avg("frames_within_10cm"),
+                         "reacquire_s_max": None if any(x is None for x in re) else max(re),
+                         "ms_total_avg": round(float(np.mean([r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
+                         "ms_total_max": round(float(np.max([r["ms_per_frame"]["total"]["max"] for r in rs])), 2),
+                         "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs], axis=0).round(0).tolist()}
+    res["summary"] = summary
+    res["per_take"] = {k: [{kk: r[kk] for kk in ("take", "mpjpe_cm", "root_error_cm", "frames_within_10cm",
+                                                 "reacquire_s_max", "body_selected", "subject_height_m")} for r in v]
+                       for k, v in rows.items()}
+    res["pyramid"] = pyramid_speedup(loaded)
+    print(json.dumps(res, indent=None if args.json else 1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

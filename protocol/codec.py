@@ -19,9 +19,13 @@ refuse.
 
 Adding a message type
 ---------------------
-Add one row to ``_REGISTRY``: wire name -> (dataclass, {field: check}). A check is a function
-``(value, where) -> value`` built by the factories below; it raises :class:`ProtocolError`. An
-import-time check makes sure each row covers exactly its dataclass's constructor fields.
+Call :func:`register_message` with the wire name, the frozen dataclass and ``{field: check}``
+(the tracker's types are registered here; the game's in :mod:`protocol.game_messages`). A check
+is a function ``(value, where) -> value`` built by the public factories (:func:`int_check`,
+:func:`float_check`, :func:`str_check`, :func:`enum_check`, :func:`list_check`,
+:func:`map_check`, :func:`array_check`, :func:`schema_version_check`); it raises
+:class:`ProtocolError`. Registration checks that the row covers exactly the dataclass's
+constructor fields.
 """
 
 from __future__ import annotations
@@ -43,7 +47,8 @@ from .skeleton import N_CAPSULES, N_JOINTS, N_PARTS, POSE_SIZE
 
 __all__ = [
     "MAX_MAP_ENTRIES", "MAX_PAYLOAD_BYTES", "MAX_STRING_LEN", "MESSAGE_TYPES", "TRACKER_ID_PATTERN",
-    "ProtocolError", "decode", "encode", "message_type_name",
+    "Check", "ProtocolError", "array_check", "decode", "encode", "enum_check", "fail", "float_check", "int_check",
+    "list_check", "map_check", "message_type_name", "register_message", "schema_version_check", "str_check",
 ]
 
 #: Largest payload :func:`decode` will unpack (checked before unpacking).
@@ -246,12 +251,44 @@ _REGISTRY: Final[dict[str, tuple[type[Any], dict[str, Check]]]] = {
         "estimator": _OPT_NAME, "body_model": _OPT_NAME,
     }),
 }
-#: The registered message classes by wire name (read-only view for callers).
-MESSAGE_TYPES: Final[dict[str, type[Any]]] = {name: cls for name, (cls, _) in _REGISTRY.items()}
-_NAME_OF: Final[dict[type[Any], str]] = {cls: name for name, cls in MESSAGE_TYPES.items()}
-for _row, (_cls, _checks) in _REGISTRY.items():  # a row must cover exactly the constructor fields
-    if set(_checks) != {f.name for f in dataclasses.fields(_cls) if f.init}:
-        raise RuntimeError(f"codec row {_row!r} does not match the fields of {_cls.__name__}")
+#: The registered message classes by wire name (do not modify; use :func:`register_message`).
+MESSAGE_TYPES: Final[dict[str, type[Any]]] = {}
+_NAME_OF: Final[dict[type[Any], str]] = {}
+
+# public names of the check factories, for message types registered by other modules
+int_check, float_check, str_check, enum_check = _int, _float, _str, _enum
+list_check, map_check, array_check, schema_version_check, fail = _list_of, _map, _farray, _schema_version, _fail
+
+
+def register_message(name: str, cls: type[Any], checks: dict[str, Check]) -> None:
+    """Make a message type known to :func:`encode` and :func:`decode`.
+
+    Parameters
+    ----------
+    name : str
+        Wire ``"type"`` (e.g. ``"game_event"``).
+    cls : type
+        Frozen dataclass; its constructor fields are the wire keys.
+    checks : dict[str, Check]
+        One check per constructor field (``schema_version`` included).
+
+    Raises
+    ------
+    ValueError
+        The checks do not cover exactly the constructor fields, or the name or class is already
+        registered differently.
+    """
+    if set(checks) != {f.name for f in dataclasses.fields(cls) if f.init}:
+        raise ValueError(f"codec row {name!r} does not match the fields of {cls.__name__}")
+    if MESSAGE_TYPES.get(name, cls) is not cls or _NAME_OF.get(cls, name) != name:
+        raise ValueError(f"message type {name!r} / {cls.__name__} is already registered differently")
+    _REGISTRY[name] = (cls, dict(checks))
+    MESSAGE_TYPES[name] = cls
+    _NAME_OF[cls] = name
+
+
+for _row, (_cls, _checks) in list(_REGISTRY.items()):
+    register_message(_row, _cls, _checks)
 
 # --- public API -----------------------------------------------------------------------------------
 

@@ -286,7 +286,7 @@ def body_from_measurements(
     off = {
         "pelvis": (0, 0, 0),
         "spine": (0, spine_l, 0), "chest": (0, chest_l, 0), "neck": (0, neck_l, 0),
-        "head": (0, 0.055 * h, 0), "head_top": (0, 0.115 * h, 0),
+        "head": (0, 0.055 * h, 0), "head_top": (0, 0.115 * h - 0.048 * h, 0),  # skull capsule top at h
         "l_clavicle": (clav_in, neck_l - 0.025 * h, 0), "l_shoulder": (clav_len, 0, 0),
         "l_elbow": (upper, 0, 0), "l_wrist": (fore, 0, 0), "l_hand_tip": (hand, 0, 0),
         "l_hip": (hip_half, 0, 0), "l_knee": (0, -thigh, 0), "l_ankle": (0, -shin, 0),

@@ -38,11 +38,12 @@ def test_taller_and_heavier_bodies_are_larger() -> None:
 
 
 def test_standing_height_matches_measurement() -> None:
+    skull = [c[0] for c in CAPSULES].index("skull")
     for h in (1.2, 1.6, 1.85):
         b = body_from_measurements(h)
         joints = fk(standing_pose(b), b)
-        top = joints[JOINT_INDEX["head_top"], 1]
-        assert top == pytest.approx(h, rel=0.03)
+        top = joints[JOINT_INDEX["head_top"], 1] + b.capsule_radii[skull, 1]  # top of the skull surface
+        assert top == pytest.approx(h, rel=0.015)
         assert b.height == pytest.approx(h)
 
 

@@ -263,7 +263,8 @@ def _run_demo(args: argparse.Namespace, stop: threading.Event) -> int:
         described = (f"the tracker on the synthetic scene playing {DEFAULT_SCRIPT.name} "
                      f"(database {loaded.body.name}, {loaded.db.n_leaves} templates)")
         cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{DEFAULT_SCRIPT}",
-               "--db", str(loaded.path), "--id", tid, "--listen", endpoint, "--duration", str(args.duration)]
+               "--db", str(loaded.path), "--id", tid, "--listen", endpoint, "--duration", str(args.duration),
+               "--wait-for-subscriber", "10"]
     def out(line: str) -> None:
         if not args.json:
             print(line)

@@ -166,7 +166,8 @@ def _has_subscriber(pub: zenoh.Publisher) -> bool:
     return bool(getattr(status, "matching", status))
 
 
-def _wait_for_subscriber(pub: zenoh.Publisher, seconds: float, stop: threading.Event) -> bool:
+def wait_for_subscriber(pub: zenoh.Publisher, seconds: float, stop: threading.Event) -> bool:
+    """Wait up to ``seconds`` for a subscriber matching ``pub``; True if one is there."""
     deadline = time.monotonic() + seconds
     while not stop.is_set() and time.monotonic() < deadline:
         if _has_subscriber(pub):
@@ -232,7 +233,7 @@ def publish_motion(
             )
             if options.wait_for_subscriber > 0:
                 status_pub.put(encode(status.message(TrackerState.WAITING, time.monotonic())))
-                if not _wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
+                if not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
                     log.warning("no subscriber after %.1f s; publishing anyway", options.wait_for_subscriber)
             body_pub.put(body_bytes)
             _run_frames(stream, pose_pub, status_pub, status, options, total, stop, result)

@@ -30,9 +30,10 @@ import zenoh
 from protocol.codec import encode
 from protocol.keys import alive_key, body_key, pose_key, status_key, validate_id
 from protocol.messages import PoseFrame, TrackerState, TrackerStatus, body_info_from_body
-from protocol.session import config_from_args, open_session, stop_on_signals, undeclare_quietly
+from protocol.session import config_from_args, open_session, undeclare_quietly
 
 from .pipeline import FrameResult, TrackerConfig, new_state, process_frame
+from .replay_app import wait_for_subscriber
 from .sources import FrameSource
 from .template_db import LoadedDatabase
 
@@ -54,6 +55,7 @@ class RunOptions:
     status_interval: float = 1.0
     realtime: bool = True
     fps_hint: float = 30.0
+    wait_for_subscriber: float = 0.0
 
 
 @dataclass
@@ -124,6 +126,8 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             entities.append(session.declare_queryable(body_key(tid), on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
             status_pub.put(status(TrackerState.STARTING))
+            if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
+                log.warning("no subscriber after %.1f s; tracking anyway", options.wait_for_subscriber)
             log.info("publishing poses of tracker %r on %s (database %s, %d templates)", tid, pose_key(tid),
                      loaded.body.name, loaded.db.n_leaves)
             body_pub.put(body_bytes[0])
@@ -179,13 +183,15 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
 
 
 def run_tracker_cli(args: argparse.Namespace, loaded: LoadedDatabase, config: TrackerConfig,
-                    source: FrameSource) -> int:
-    """Wire ``mocap-tracker run`` arguments to :func:`run_tracker` (signals, zenoh config)."""
+                    source: FrameSource, stop: threading.Event) -> int:
+    """Wire ``mocap-tracker run`` arguments to :func:`run_tracker` (zenoh config; ``stop`` is set by
+    the caller's signal handling)."""
     conf = config_from_args(args, "publisher")
-    stop = threading.Event()
     opts = RunOptions(tracker_id=args.id, max_frames=args.frames, duration=args.duration,
-                      realtime=not args.as_fast_as_possible)
-    with stop_on_signals(stop):
-        counters = run_tracker(source, loaded, config, conf, opts, stop)
+                      realtime=not args.as_fast_as_possible, wait_for_subscriber=args.wait_for_subscriber)
+    if stop.is_set():
+        source.close()
+        return 0
+    counters = run_tracker(source, loaded, config, conf, opts, stop)
     log.info("tracker stopped: %s", counters)
     return 0

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -85,6 +86,8 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
     rp.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
     rp.add_argument("--as-fast-as-possible", action="store_true",
                     help="do not pace file/synthetic sources at their frame rate")
+    rp.add_argument("--wait-for-subscriber", type=float, default=0.0, metavar="S",
+                    help="wait up to S seconds for a pose subscriber before reading the first frame")
     add_zenoh_args(rp, "publisher")
     rp.set_defaults(func=_cmd_run)
 
@@ -123,7 +126,7 @@ def ensure_db(path: str | None, body: str = _DEFAULT_BODY, build_if_missing: boo
 
 def _build(body_name: str, out: Path, mocap: str | None, scripts: list[str], max_poses: int | None,
            takes: int | None) -> dict[str, Any]:
-    import os
+
 
     from .body_models import body_model
     from .camera import default_camera
@@ -174,14 +177,45 @@ def _config(args: argparse.Namespace) -> Any:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    import threading
+
+    from protocol.session import stop_on_signals
+
     from .sources import open_source, parse_source
     from .tracker_app import run_tracker_cli
 
     spec = parse_source(args.source)
-    loaded = ensure_db(args.db)
-    source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
-                         seed=args.seed)
-    return run_tracker_cli(args, loaded, _config(args), source)
+    config = _config(args)
+    outcome: dict[str, Any] = {}
+
+    def work(stop: threading.Event) -> None:
+        try:
+            loaded = ensure_db(args.db)
+            if stop.is_set():
+                return
+            source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
+                                 seed=args.seed)
+            outcome["rc"] = run_tracker_cli(args, loaded, config, source, stop)
+        except BaseException as exc:  # handed to the main thread, which reports it
+            outcome["error"] = exc
+
+    # The work runs in a worker thread so that a signal during the seconds of start-up (database,
+    # EGL context) still ends the process promptly; once running, the loop checks ``stop`` per frame.
+    with stop_on_signals(threading.Event()) as stop:
+        worker = threading.Thread(target=work, args=(stop,), name="tracker", daemon=True)
+        worker.start()
+        while worker.is_alive():
+            if stop.wait(0.05):
+                worker.join(timeout=1.0)
+                break
+    if worker.is_alive():  # still starting up (loading, EGL): nothing to clean up yet, leave now
+        log.info("stopped during start-up")
+        logging.shutdown()
+        sys.stdout.flush()
+        os._exit(0)
+    if "error" in outcome:
+        raise outcome["error"]
+    return int(outcome.get("rc", 0))
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:

@@ -1,0 +1,390 @@
+"""The five gesture state machines of the game (Okada & Stenger, §4), over :class:`FrameFeatures`.
+
+The arm gestures (transform, strike, fire ring) are here; the crouch and the side-step are in
+:mod:`game_client.body_detectors`.
+
+Each detector reads one frame's features and returns a :class:`Candidate` on the frame where its
+gesture completes. Timing windows are in seconds and distances in body heights ``H`` (see
+:mod:`game_client.features`), so the same thresholds hold at 15-120 Hz and for any body size.
+Every threshold that separates an "in" from an "out" state has hysteresis, so tracker jitter
+around a threshold cannot toggle a state on every frame. When the joints a detector needs are
+occluded it keeps its state for up to ``occlusion_hold_s`` and then starts over.
+
+What each gesture means here (``up``/``out``/``fwd`` of a wrist are relative to the shoulder
+mid-point in body heights, ``out`` measured away from the midline on the wrist's own side). Arm
+gestures are rejected while the wrist path shows a wave (more than 4 direction reversals of at
+least 0.06 H), and :class:`~game_client.gestures.GestureRecognizer` also drops arm gestures and
+crouches made while the body turned or travelled (a dance, a walk).
+
+transform
+    Both wrists out to the sides near shoulder height (``out >= 0.28``, ``|up| <= 0.12``) for
+    0.12 s, then within 2 s both wrists resting on the chest (``out <= 0.10``,
+    ``-0.24 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
+    hands reach the chest.
+crouch (:mod:`game_client.body_detectors`)
+    From standing (pelvis height over the lower ankle >= 0.88 leg lengths) down to <= 0.65 leg
+    lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing).
+    Ends when the ratio crosses 0.65.
+side_step (:mod:`game_client.body_detectors`)
+    Within 2 s the pelvis moves >= 0.17 H along the body's left/right axis at >= 0.12 H/s on
+    average, with at most 0.4 of that forwards/backwards; the leading foot moves >= 0.17 H the
+    same way (also mostly sideways); the facing stays within 20 deg; and the pelvis has come to
+    rest (< 0.2 H/s over 0.2 s). Ends on that frame; ``direction`` is the player's ``left`` or
+    ``right``.
+strike
+    The right wrist rises above the head line (``up >= 0.10``) while the left wrist stays below
+    ``up = -0.10`` (or holds the same grip: wrists within 0.15 H, as in a two-handed chop) and is
+    seen in >= 30 % of the frames, then falls from ``up = 0.05`` to ``up = -0.15`` in <= 0.14 s
+    (>= 1.4 H/s). Ends when it passes ``-0.15``.
+fire_ring
+    Both wrists rise to ``up >= -0.08`` (about shoulder height or above), apart (>= 0.12 H) and at
+    some point not stretched out sideways (``out <= 0.36``: not a T-pose), for 0.45-3.3 s, then
+    both fall to ``up <= -0.22`` within 0.5 s of leaving that zone. A raise that starts within
+    0.6 s of the previous drop is rhythmic (a waving of both arms) and ignored. Ends when the
+    second wrist passes ``-0.22``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+from .features import FrameFeatures, Vec3
+
+__all__ = [
+    "Candidate", "FireRingDetector", "FireRingParams", "StrikeDetector", "StrikeParams", "TransformDetector",
+    "TransformParams", "clip01",
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A completed gesture as a detector reports it (times in stream seconds)."""
+
+    start_s: float
+    end_s: float
+    score: float  # margin-based quality in [0, 1]
+    direction: str | None = None
+
+
+def clip01(x: float) -> float:
+    """``x`` clipped to [0, 1]."""
+    return 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
+
+
+class _Swings:
+    """Counts direction reversals (zigzag with a minimum swing) of a few coordinates; the largest
+    count over the coordinates is :attr:`count`. A waving hand reverses many times."""
+
+    def __init__(self, min_swing: float) -> None:
+        self.min_swing = min_swing
+        self.count = 0
+        self._n: list[int] = []
+        self._ext: list[float] = []
+        self._dir: list[int] = []
+
+    def reset(self) -> None:
+        self.count = 0
+        self._n, self._ext, self._dir = [], [], []
+
+    def add(self, *x: float) -> None:
+        if not self._ext:
+            self._ext, self._dir, self._n = list(x), [0] * len(x), [0] * len(x)
+            return
+        m = self.min_swing
+        for i, v in enumerate(x):
+            d, e = self._dir[i], self._ext[i]
+            if d >= 0 and v < e - m:
+                self._n[i] += d > 0
+                self._dir[i], self._ext[i] = -1, v
+            elif d <= 0 and v > e + m:
+                self._n[i] += d < 0
+                self._dir[i], self._ext[i] = 1, v
+            elif (d > 0 and v > e) or (d < 0 and v < e):
+                self._ext[i] = v
+        self.count = max(self._n)
+
+
+def _cross_time(t0: float, x0: float, t1: float, x1: float, level: float) -> float:
+    """Time at which a linear motion from (t0, x0) to (t1, x1) passes ``level`` (clamped to [t0, t1])."""
+    if t0 == -math.inf or x0 == x1:
+        return t1
+    a = (x0 - level) / (x0 - x1)
+    return t0 + (t1 - t0) * min(max(a, 0.0), 1.0)
+
+
+@dataclass(frozen=True)
+class FireRingParams:
+    """Thresholds of the fire-ring gesture (lengths in body heights, times in seconds)."""
+
+    raise_up: float = -0.08
+    hysteresis: float = 0.02
+    low_up: float = -0.22
+    min_raised_s: float = 0.45
+    max_raised_s: float = 3.3
+    max_drop_s: float = 0.5
+    min_separation: float = 0.12
+    max_out: float = 0.36  # both wrists must at some point be up with out <= this (not a T)
+    max_swings: int = 4
+    min_swing: float = 0.06
+    rhythm_gap_s: float = 0.6
+    occlusion_hold_s: float = 0.5
+
+
+class FireRingDetector:
+    """Both arms raised (apart, not waving), then both brought down quickly."""
+
+    def __init__(self, p: FireRingParams) -> None:
+        self.p = p
+        self.swings = _Swings(p.min_swing)
+        self.t_cycle_end = -math.inf
+        self.reset()
+
+    def reset(self) -> None:
+        self.state = "idle"
+        self.t_raised = self.t_exit = self.t_seen = self.t_prev = -math.inf
+        self.prev_lo = self.prev_hi = math.nan
+        self.peak = -math.inf
+        self.min_sep = math.inf
+        self.rhythmic = False
+        self.upright = False
+        self.swings.reset()
+
+    def update(self, f: FrameFeatures) -> Candidate | None:
+        p = self.p
+        if not (f.ok and f.arm_l_ok and f.arm_r_ok):
+            if f.t - self.t_seen > p.occlusion_hold_s:
+                self.reset()
+            return None
+        self.t_seen = f.t
+        wl, wr = f.wrist_l, f.wrist_r
+        assert wl is not None and wr is not None
+        lo, hi = min(wl[1], wr[1]), max(wl[1], wr[1])
+        out: Candidate | None = None
+        if self.state == "idle":
+            if lo >= p.raise_up:
+                self.state = "raised"
+                self.t_raised = _cross_time(self.t_prev, self.prev_lo, f.t, lo, p.raise_up)
+                self.rhythmic = 0.0 <= self.t_raised - self.t_cycle_end < p.rhythm_gap_s
+                self.peak, self.min_sep, self.upright = lo, math.inf, False
+                self.swings.reset()
+        if self.state == "raised":
+            self.peak = max(self.peak, lo)
+            self.upright = self.upright or (lo >= p.raise_up and max(wl[0], wr[0]) <= p.max_out)
+            self.min_sep = min(self.min_sep, wl[0] + wr[0])
+            self.swings.add(wl[0], wl[2], wr[0], wr[2])
+            if lo < p.raise_up - p.hysteresis:
+                self.t_exit = _cross_time(self.t_prev, self.prev_lo, f.t, lo, p.raise_up - p.hysteresis)
+                dur = self.t_exit - self.t_raised
+                fine = (p.min_raised_s <= dur <= p.max_raised_s and self.swings.count <= p.max_swings
+                        and self.min_sep >= p.min_separation and self.upright and not self.rhythmic)
+                self.state = "dropping" if fine else "rejected"
+                if not fine:
+                    log.debug("fire ring at %.2f s not armed: raised %.2f s, %d swings, separation %.2f, "
+                              "upright %s, rhythmic %s", f.t, dur, self.swings.count, self.min_sep,
+                              self.upright, self.rhythmic)
+        if self.state in ("dropping", "rejected"):
+            if lo >= p.raise_up and self.state == "dropping":
+                self.state = "raised"
+            elif hi <= p.low_up:
+                t_low = _cross_time(self.t_prev, self.prev_hi, f.t, hi, p.low_up)
+                drop = t_low - self.t_exit
+                if self.state == "dropping" and drop > p.max_drop_s:
+                    log.debug("fire ring at %.2f s too slow: %.2f s from raised to low", f.t, drop)
+                if self.state == "dropping" and drop <= p.max_drop_s:
+                    speed = (self.peak - p.low_up) / max(t_low - self.t_exit, 0.05)
+                    score = 0.5 * clip01((self.peak - p.raise_up) / 0.2) + 0.5 * clip01(speed / 1.0)
+                    out = Candidate(self.t_raised, t_low, score)
+                self.t_cycle_end = t_low
+                self.state = "idle"
+            elif lo >= p.raise_up:  # rejected but raised again: a new attempt
+                self.state = "idle"
+            elif f.t - self.t_exit > max(p.max_drop_s, 1.5):
+                self.state = "idle"
+        self.t_prev, self.prev_lo, self.prev_hi = f.t, lo, hi
+        return out
+
+
+@dataclass(frozen=True)
+class StrikeParams:
+    """Thresholds of the strike (right arm up above the head, then down fast)."""
+
+    raise_up: float = 0.10
+    band_top: float = 0.05
+    band_bottom: float = -0.15
+    max_band_s: float = 0.14  # band_top -> band_bottom in this time: >= 1.4 H/s on average
+    min_raised_s: float = 0.0
+    max_raised_s: float = 4.0
+    left_max_up: float = -0.10
+    together_max: float = 0.15  # wrists closer than this: a two-handed swing, still a strike
+    min_left_seen: float = 0.3  # fraction of the gesture's frames in which the left arm was visible
+    max_swings: int = 4
+    min_swing: float = 0.06
+    occlusion_hold_s: float = 0.5
+
+
+class StrikeDetector:
+    """Right arm swung up above the head and brought down fast (left arm low or on the same grip)."""
+
+    def __init__(self, p: StrikeParams) -> None:
+        self.p = p
+        self.swings = _Swings(p.min_swing)
+        self.reset()
+
+    def reset(self) -> None:
+        self.state = "idle"
+        self.t_raised = self.t_top = self.t_seen = self.t_prev = self.t_last_raised = -math.inf
+        self.prev_up = math.nan
+        self.peak = -math.inf
+        self.left_ok = True
+        self.left_seen = self.frames = 0
+        self.swings.reset()
+
+    def _left_fine(self, f: FrameFeatures) -> bool:
+        wl, wr = f.wrist_l, f.wrist_r
+        assert wl is not None and wr is not None
+        self.frames += 1
+        if not f.arm_l_ok:
+            return True
+        self.left_seen += 1
+        if wl[1] <= self.p.left_max_up:
+            return True
+        return bool(wl[0] + wr[0] <= self.p.together_max and abs(wl[1] - wr[1]) <= self.p.together_max)
+
+    def update(self, f: FrameFeatures) -> Candidate | None:
+        p = self.p
+        if not (f.ok and f.arm_r_ok):
+            if f.t - self.t_seen > p.occlusion_hold_s:
+                self.reset()
+            return None
+        self.t_seen = f.t
+        wr = f.wrist_r
+        assert wr is not None
+        up = float(wr[1])
+        out: Candidate | None = None
+        if self.state == "idle" and up >= p.raise_up:
+            self.state, self.t_raised, self.peak, self.left_ok = "raised", f.t, up, True
+            self.left_seen = self.frames = 0
+            self.swings.reset()
+        if self.state != "idle":
+            self.left_ok = self.left_ok and self._left_fine(f)
+        if self.state == "raised":
+            self.peak = max(self.peak, up)
+            self.swings.add(wr[0], wr[2])
+            if up >= p.raise_up:
+                self.t_last_raised = f.t
+            if up < p.band_top:
+                self.state = "falling"
+                self.t_top = _cross_time(self.t_prev, self.prev_up, f.t, up, p.band_top)
+        if self.state == "falling":
+            if up >= p.raise_up:
+                self.state = "raised"
+            elif up <= p.band_bottom:
+                t_low = _cross_time(self.t_prev, self.prev_up, f.t, up, p.band_bottom)
+                band = t_low - self.t_top
+                dur = self.t_last_raised - self.t_raised
+                seen = self.left_seen / max(self.frames, 1)  # the left arm must be seen to rule out two arms
+                if (band <= p.max_band_s and self.left_ok and self.swings.count <= p.max_swings
+                        and p.min_raised_s <= dur + 1e-9 and dur <= p.max_raised_s and seen >= p.min_left_seen):
+                    speed = (p.band_top - p.band_bottom) / max(band, 1e-3)
+                    score = 0.5 * clip01((self.peak - p.raise_up) / 0.15) + 0.5 * clip01(speed / 3.0)
+                    out = Candidate(self.t_raised, t_low, score * (0.6 + 0.4 * seen))
+                self.state = "idle"
+            elif f.t - self.t_top > 1.0:
+                self.state = "idle"
+        self.t_prev, self.prev_up = f.t, up
+        return out
+
+
+@dataclass(frozen=True)
+class TransformParams:
+    """Thresholds of the ninja transformation (arms out to the sides, then onto the chest)."""
+
+    out_min: float = 0.28
+    out_up_abs: float = 0.12
+    out_hold_s: float = 0.12
+    chest_out_max: float = 0.10
+    chest_up_min: float = -0.24
+    chest_up_max: float = 0.02
+    chest_fwd_min: float = 0.0
+    chest_fwd_max: float = 0.22
+    chest_hold_s: float = 0.06
+    chest_still: float = 0.08  # each wrist coordinate moves at most this far during the chest hold
+    max_gap_s: float = 2.0
+    max_swings: int = 3
+    min_swing: float = 0.08
+    hysteresis: float = 0.02
+    occlusion_hold_s: float = 0.5
+
+
+class TransformDetector:
+    """Both arms raised out to the sides, then bent so both hands rest (still) on the chest."""
+
+    def __init__(self, p: TransformParams) -> None:
+        self.p = p
+        self.swings = _Swings(p.min_swing)
+        self.reset()
+
+    def reset(self) -> None:
+        self.state = "idle"
+        self.t_out = self.t_out_last = self.t_chest = self.t_seen = -math.inf
+        self.out_margin = 0.0
+        self.chest_at: tuple[float, ...] | None = None
+        self.swings.reset()
+
+    def _is_out(self, w: Vec3, slack: float) -> bool:
+        return bool(w[0] >= self.p.out_min - slack and abs(w[1]) <= self.p.out_up_abs + slack)
+
+    def _on_chest(self, w: Vec3, slack: float) -> bool:
+        p = self.p
+        return bool(w[0] <= p.chest_out_max + slack and p.chest_up_min - slack <= w[1] <= p.chest_up_max + slack
+                    and p.chest_fwd_min - slack <= w[2] <= p.chest_fwd_max + slack)
+
+    def update(self, f: FrameFeatures) -> Candidate | None:
+        p = self.p
+        if not (f.ok and f.arm_l_ok and f.arm_r_ok):
+            if f.t - self.t_seen > p.occlusion_hold_s:
+                self.reset()
+            return None
+        self.t_seen = f.t
+        wl, wr = f.wrist_l, f.wrist_r
+        assert wl is not None and wr is not None
+        both_out = self._is_out(wl, 0.0) and self._is_out(wr, 0.0)
+        still_out = self._is_out(wl, p.hysteresis) and self._is_out(wr, p.hysteresis)
+        if self.state == "idle" and both_out:
+            self.state, self.t_out, self.out_margin = "out_pending", f.t, 0.0
+            self.swings.reset()
+        if self.state == "out_pending":
+            if not still_out:
+                self.state = "idle"
+            else:
+                self.swings.add(wl[0], wr[0])
+                self.out_margin = max(self.out_margin, min(wl[0], wr[0]) - p.out_min)
+                if f.t - self.t_out >= p.out_hold_s:
+                    self.state, self.t_out_last = "out", f.t
+        elif self.state == "out":
+            self.swings.add(wl[0], wr[0])  # arms going in and out (waving) are not a transformation
+            if still_out:
+                self.t_out_last = f.t
+            elif f.t - self.t_out_last > p.max_gap_s or self.swings.count > p.max_swings:
+                log.debug("transform at %.2f s abandoned: %.2f s since arms out, %d swings", f.t,
+                          f.t - self.t_out_last, self.swings.count)
+                self.reset()
+            elif self._on_chest(wl, 0.0) and self._on_chest(wr, 0.0):
+                self.state, self.t_chest, self.chest_at = "chest", f.t, wl + wr
+        elif self.state == "chest":
+            assert self.chest_at is not None
+            moved = max(abs(a - b) for a, b in zip(wl + wr, self.chest_at, strict=True))
+            if not (self._on_chest(wl, p.hysteresis) and self._on_chest(wr, p.hysteresis)) or moved > p.chest_still:
+                log.debug("transform at %.2f s: hands left the chest (moved %.3f H)", f.t, moved)
+                self.state = "out" if f.t - self.t_out_last <= p.max_gap_s else "idle"
+            elif f.t - self.t_chest >= p.chest_hold_s:
+                gap = self.t_chest - self.t_out_last
+                cand = Candidate(self.t_out, self.t_chest,
+                                 0.5 * clip01(self.out_margin / 0.12) + 0.5 * clip01(1.0 - gap / p.max_gap_s))
+                self.reset()
+                return cand
+        return None

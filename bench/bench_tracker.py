@@ -36,8 +36,8 @@ from tracker_service.placement import observed_placement
 from tracker_service.silhouette_distance import RunSet
 from tracker_service.silhouette_render import render_silhouette, silhouette_runs_batch
 from tracker_service.template_db import default_db_dir, load_db
-from tracker_service.tree_filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.tracker_cli import ensure_db
+from tracker_service.tree_filter import FilterDB, FilterParams, initial_state, step
 
 
 def _rss_mb() -> float:

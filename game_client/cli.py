@@ -21,12 +21,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import sys
 import threading
 from pathlib import Path
 from typing import Any
 
+from protocol.cli_args import positive_float as _positive_float
+from protocol.cli_args import positive_int as _positive_int
 from protocol.codec import ProtocolError
 from protocol.keys import ANY, DEFAULT_TRACKER_ID, validate_id
 from protocol.kinematics import fk
@@ -38,24 +39,8 @@ __all__ = ["build_parser", "main"]
 PROG = "mocap-game"
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
 
 
 def _id(allow_any: bool) -> Any:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import sys
 import threading
 import time
@@ -25,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from .cli_args import positive_float as _positive
+from .cli_args import positive_int as _count
 from .codec import decode
 from .keys import ANY, pose_key, split_key, status_key, validate_id
 from .messages import PoseFrame, TrackerStatus
@@ -52,24 +53,8 @@ def _id_or_any(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:

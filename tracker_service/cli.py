@@ -19,7 +19,6 @@ import argparse
 import itertools
 import json
 import logging
-import math
 import os
 import queue
 import signal
@@ -33,6 +32,8 @@ from typing import Any
 
 import zenoh
 
+from protocol.cli_args import positive_float as _positive_float
+from protocol.cli_args import positive_int as _positive_int
 from protocol.codec import ProtocolError, decode
 from protocol.keys import DEFAULT_TRACKER_ID, body_key, pose_key, status_key, validate_id
 from protocol.messages import BodyInfo, PoseFrame, TrackerStatus
@@ -59,24 +60,8 @@ DEMO_RECORDINGS = (
 _J_HEAD, _J_LHAND, _J_RHAND = JOINT_INDEX["head_top"], JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
 
 
 def _tracker_id(text: str) -> str:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import sys
 import time
 from collections.abc import Sequence
@@ -31,6 +30,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from protocol.cli_args import nonneg_float as _nonneg_float
+from protocol.cli_args import nonneg_int as _nonneg_int
+from protocol.cli_args import positive_int as _pos_int
 from protocol.skeleton import JOINT_NAMES, PARTS
 
 __all__ = ["add_render_parser", "label_palette", "run_render", "truth_record"]
@@ -39,31 +41,10 @@ log = logging.getLogger(__name__)
 _VIDEO = {".mp4": "mp4v", ".avi": "MJPG"}
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
-    return v
 
 
-def _pos_int(text: str) -> int:
-    v = _nonneg_int(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
-    return v
 
 
-def _nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (v >= 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
 
 
 def add_render_parser(subparsers: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> argparse.ArgumentParser:

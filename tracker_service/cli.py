@@ -279,7 +279,7 @@ def _run_demo(args: argparse.Namespace, stop: threading.Event) -> int:
               f"(seq {summary['first_seq']}..{summary['last_seq']}), "
               f"in order: {'yes' if summary['in_order'] else 'NO'}, {summary['fps']:.1f} fps, "
               f"mean latency {summary['latency_ms']:.1f} ms, {summary['statuses']} status messages, "
-              f"{summary['malformed']} malformed; replay exit code {summary['replay_exit_code']}")
+              f"{summary['malformed']} malformed; child exit code {summary['replay_exit_code']}")
         print("demo: OK" if ok else "demo: FAILED")
     return 0 if ok else 1
 

@@ -126,10 +126,11 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             entities.append(session.declare_queryable(body_key(tid), on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
             status_pub.put(status(TrackerState.STARTING))
-            if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
-                log.warning("no subscriber after %.1f s; tracking anyway", options.wait_for_subscriber)
             log.info("publishing poses of tracker %r on %s (database %s, %d templates)", tid, pose_key(tid),
                      loaded.body.name, loaded.db.n_leaves)
+            if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
+                log.warning("no subscriber after %.1f s; tracking anyway", options.wait_for_subscriber)
+            t_run = time.monotonic()  # --duration counts from here
             body_pub.put(body_bytes[0])
             next_status = time.monotonic() + options.status_interval
             seq = 0
@@ -167,7 +168,7 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
                     next_status = now + options.status_interval
                 if options.max_frames is not None and counters.values["frames_in"] >= options.max_frames:
                     break
-                if options.duration is not None and now - t_start >= options.duration:
+                if options.duration is not None and now - t_run >= options.duration:
                     break
                 if options.realtime:  # a file or synthetic source is played at its frame rate
                     due += period

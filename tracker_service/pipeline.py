@@ -29,7 +29,7 @@ from .background import BackgroundModel, BackgroundParams, learn_background, sub
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
 from .features import Distance, preprocess
-from .placement import observed_placement, placement_to_root
+from .placement import feet_scale, observed_placement, placement_to_root
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
@@ -63,6 +63,9 @@ class TrackerConfig:
         Body models considered by the selection (empty: keep the database's body).
     use_mean_pose : bool
         Publish the posterior-mean pose instead of the MAP pose.
+    depth_from_feet : bool
+        Take the subject's depth from the silhouette's feet line (scaled for the body model)
+        rather than from the scale of the best template fit.
     """
 
     distance: Distance = "nwxor"
@@ -77,6 +80,7 @@ class TrackerConfig:
     init_frames: int = 5
     body_candidates: tuple[str, ...] = ()
     use_mean_pose: bool = False
+    depth_from_feet: bool = True
 
 
 @dataclass(frozen=True)
@@ -227,7 +231,12 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
                 fstate = initial_state(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
         phase = "tracking"
         frames_in_phase = 0
-    pose[:3] = placement_to_root(est.placement, pose[:3], camera, body_scale=scale)
+    place = est.placement.copy()
+    if config.depth_from_feet:  # the feet line measures depth better than the template fit's scale
+        s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)
+        if s_feet is not None and abs(s_feet / place[2] - 1.0) < 0.15:
+            place[2] = s_feet
+    pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)
     joints = fk(pose, body)
     reinits = state.reinits + int(est.reinitialised)
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,

@@ -14,12 +14,17 @@ from numpy.typing import NDArray
 
 from .camera import Camera
 
-__all__ = ["observed_placement", "placement_to_root", "reference_floor_row"]
+__all__ = ["TOE_AHEAD_M", "feet_scale", "observed_placement", "placement_to_root", "reference_floor_row"]
+
+
+#: Where the lowest silhouette point of a person standing at the reference spot touches the floor:
+#: the toes, about 9 cm in front of the root for an adult facing the camera.
+TOE_AHEAD_M = 0.09
 
 
 def reference_floor_row(camera: Camera) -> float:
-    """Image row of the floor point under the reference spot (world origin)."""
-    return float(camera.project(np.zeros(3))[1])
+    """Image row of the lowest silhouette point of a person standing at the reference spot."""
+    return float(camera.project(np.array([0.0, 0.0, TOE_AHEAD_M]))[1])
 
 
 def observed_placement(mask: NDArray[np.bool_], camera: Camera, foot_margin_px: float = 1.5
@@ -54,6 +59,37 @@ def observed_placement(mask: NDArray[np.bool_], camera: Camera, foot_margin_px: 
     x_ref = float(camera.project(np.zeros(3))[0])
     dx = x_obs - (camera.cx + s * (x_ref - camera.cx))
     return np.array([dx, 0.0, s])
+
+
+def feet_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], center_y: float,
+               foot_margin_px: float = 0.0) -> float | None:
+    """Template scale that puts the template's lowest row on the silhouette's lowest row.
+
+    Both rows belong to the same body point (the sole or toes touching the floor), so their ratio
+    about the principal point's row gives the depth ratio without the bias of comparing the toes
+    with the root's floor point.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    template_runs : (R, 3) int16
+        The matched template's full-resolution runs (reference placement).
+    center_y : float
+        Principal point row.
+
+    Returns
+    -------
+    float or None
+        None when either bottom is not below the principal point.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0 or len(template_runs) == 0:
+        return None
+    obs = float(rows[-1]) + foot_margin_px
+    tpl = float(template_runs[:, 0].max())
+    if obs <= center_y + 1 or tpl <= center_y + 1:
+        return None
+    return (obs - center_y) / (tpl - center_y)
 
 
 def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float64], camera: Camera,

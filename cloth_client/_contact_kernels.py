@@ -1,0 +1,222 @@
+"""Numba kernels for cloth-vs-body contact: round-cone geometry, collision response, penetration.
+
+The plain numpy references are in :mod:`cloth_client.collision` (same rules, vectorised); a test
+checks that both agree. :mod:`cloth_client._kernels` runs :func:`collide` inside its substep loop.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+__all__ = ["COLLISION_PASSES", "capsule_geometry", "collide", "jit_kernel", "penetration", "round_cone",
+           "round_cone_geo"]
+
+F64 = NDArray[np.float64]
+#: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
+#: flags that keep NaN/inf semantics, so a blow-up still shows as NaN instead of being optimised away.
+jit_kernel = njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+_jit = jit_kernel
+
+#: Most projection passes over the capsules per particle (only particles moved in a pass get another).
+COLLISION_PASSES = 4
+#: Columns of the per-capsule geometry table built by :func:`capsule_geometry`.
+_GEO_COLS = 13
+
+
+@_jit
+def capsule_geometry(a: F64, b: F64, radii: F64, margin: float, geo: F64) -> None:  # pragma: no cover
+    """Per-capsule constants ``geo (C, 13)``: a (3), u (3), length, sin phi, cos phi, ra, rb,
+    bounding-sphere radius + margin, and 1.0 if one end sphere swallows the other (then the
+    sphere's centre replaces ``a`` and its radius ``ra``)."""
+    for c in range(a.shape[0]):
+        bx, by, bz = b[c, 0] - a[c, 0], b[c, 1] - a[c, 1], b[c, 2] - a[c, 2]
+        length = math.sqrt(bx * bx + by * by + bz * bz)
+        ra, rb = radii[c, 0], radii[c, 1]
+        geo[c, 11] = 0.5 * length + max(ra, rb) + margin
+        if abs(ra - rb) >= length - 1e-9:
+            big_b = rb > ra
+            for d in range(3):
+                geo[c, d] = b[c, d] if big_b else a[c, d]
+                geo[c, 3 + d] = 0.0
+            geo[c, 6], geo[c, 7], geo[c, 8] = 0.0, 0.0, 1.0
+            geo[c, 9], geo[c, 10], geo[c, 12] = max(ra, rb), 1.0 if big_b else 0.0, 1.0
+            continue
+        for d in range(3):
+            geo[c, d] = a[c, d]
+        geo[c, 3], geo[c, 4], geo[c, 5] = bx / length, by / length, bz / length
+        geo[c, 6] = length
+        geo[c, 7] = (ra - rb) / length
+        geo[c, 8] = math.sqrt(max(1.0 - geo[c, 7] ** 2, 0.0))
+        geo[c, 9], geo[c, 10], geo[c, 12] = ra, rb, 0.0
+
+
+@_jit
+def round_cone_geo(px: float, py: float, pz: float,
+                   g: F64) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """Signed distance, outward normal (nx, ny, nz) and axial parameter t of a point to the round
+    cone described by one row ``g`` of :func:`capsule_geometry`."""
+    pax, pay, paz = px - g[0], py - g[1], pz - g[2]
+    if g[12] > 0.5:  # a single sphere; g[10] holds t
+        dq = math.sqrt(pax * pax + pay * pay + paz * paz)
+        if dq < 1e-12:
+            return -g[9], 0.0, 1.0, 0.0, g[10]
+        return dq - g[9], pax / dq, pay / dq, paz / dq, g[10]
+    ux, uy, uz, length, sin_phi, cos_phi = g[3], g[4], g[5], g[6], g[7], g[8]
+    y = pax * ux + pay * uy + paz * uz
+    wx, wy, wz = pax - y * ux, pay - y * uy, paz - y * uz
+    rho = math.sqrt(wx * wx + wy * wy + wz * wz)
+    tau = y * cos_phi - rho * sin_phi
+    if tau < 0.0 or tau > length * cos_phi:
+        if tau < 0.0:
+            qx, qy, qz, r, t = pax, pay, paz, g[9], 0.0
+        else:
+            qx, qy, qz, r, t = pax - length * ux, pay - length * uy, paz - length * uz, g[10], 1.0
+        dq = math.sqrt(qx * qx + qy * qy + qz * qz)
+        if dq > 1e-12:
+            return dq - r, qx / dq, qy / dq, qz / dq, t
+        rho = 0.0  # at the sphere centre: fall through to the side normal
+    if rho > 1e-12:
+        wx, wy, wz = wx / rho, wy / rho, wz / rho
+    else:  # on the axis: any perpendicular of u
+        ex, ey, ez = (1.0, 0.0, 0.0) if abs(ux) < 0.9 else (0.0, 1.0, 0.0)
+        wx, wy, wz = uy * ez - uz * ey, uz * ex - ux * ez, ux * ey - uy * ex
+        wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+        wx, wy, wz = wx / wn, wy / wn, wz / wn
+    nx, ny, nz = sin_phi * ux + cos_phi * wx, sin_phi * uy + cos_phi * wy, sin_phi * uz + cos_phi * wz
+    if tau < 0.0:
+        return -g[9], nx, ny, nz, 0.0
+    if tau > length * cos_phi:
+        return -g[10], nx, ny, nz, 1.0
+    return y * sin_phi + rho * cos_phi - g[9], nx, ny, nz, min(max(y / length, 0.0), 1.0)
+
+
+@_jit
+def round_cone(px: float, py: float, pz: float, a: F64, b: F64, ra: float,
+               rb: float) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """Signed distance, outward normal and axial parameter of one point to one round cone."""
+    geo = np.empty((1, _GEO_COLS))
+    radii = np.empty((1, 2))
+    radii[0, 0], radii[0, 1] = ra, rb
+    capsule_geometry(a.reshape(1, 3), b.reshape(1, 3), radii, 0.0, geo)
+    return round_cone_geo(px, py, pz, geo[0])
+
+
+@_jit
+def _push(x: F64, v: F64, i: int, push: float, nx: float, ny: float, nz: float,
+          vsx: float, vsy: float, vsz: float) -> float:  # pragma: no cover
+    """Move particle ``i`` by ``push`` along ``n`` and cancel its approach to the surface moving at
+    ``vs``; returns the normal velocity change (>= 0) for friction."""
+    x[i, 0] += push * nx
+    x[i, 1] += push * ny
+    x[i, 2] += push * nz
+    vn = (v[i, 0] - vsx) * nx + (v[i, 1] - vsy) * ny + (v[i, 2] - vsz) * nz
+    if vn >= 0.0:
+        return 0.0
+    v[i, 0] -= vn * nx
+    v[i, 1] -= vn * ny
+    v[i, 2] -= vn * nz
+    return -vn
+
+
+@_jit
+def _friction(v: F64, i: int, n: F64, vs: F64, dvn: float, friction: float) -> None:  # pragma: no cover
+    """Coulomb friction: reduce the tangential velocity relative to the surface by ``friction * dvn``."""
+    rx, ry, rz = v[i, 0] - vs[0], v[i, 1] - vs[1], v[i, 2] - vs[2]
+    vn = rx * n[0] + ry * n[1] + rz * n[2]
+    tx, ty, tz = rx - vn * n[0], ry - vn * n[1], rz - vn * n[2]
+    vt = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if vt <= 1e-12:
+        return
+    scale = max(0.0, 1.0 - friction * dvn / vt) - 1.0
+    v[i, 0] += scale * tx
+    v[i, 1] += scale * ty
+    v[i, 2] += scale * tz
+
+
+@_jit
+def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
+            margin: float, friction: float, dt: float, floor: float, use_floor: bool,
+            contact: F64) -> None:  # pragma: no cover
+    """Project particles (those with ``active > 0``) out of the capsules ``(a1, b1)`` and the floor;
+    same rules as ``collide_np``.
+
+    ``contact (N, 6)`` receives the normals of the first and of another surface each particle was
+    pushed off (zero where none). Friction acts on particles that touch a single surface only."""
+    n_caps = a1.shape[0]
+    geo = np.empty((n_caps, _GEO_COLS))
+    capsule_geometry(a1, b1, radii, margin, geo)
+    centre = 0.5 * (a1 + b1)
+    contact[:] = 0.0
+    nrm = np.empty(3)
+    vel = np.empty(3)
+    for i in range(x.shape[0]):
+        if active[i] <= 0.0:
+            continue
+        first = -1
+        pinched = False
+        dvn = 0.0
+        for _ in range(COLLISION_PASSES):
+            moved = False
+            for c in range(n_caps):
+                ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
+                if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
+                    continue
+                d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo[c])
+                if d < margin:
+                    vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
+                    vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
+                    vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
+                    dv = _push(x, v, i, margin - d, nx, ny, nz, vsx, vsy, vsz)
+                    _record(contact, i, c, first, nx, ny, nz)
+                    if first < 0 or first == c:
+                        first = c
+                        dvn += dv
+                        nrm[0], nrm[1], nrm[2] = nx, ny, nz
+                        vel[0], vel[1], vel[2] = vsx, vsy, vsz
+                    else:
+                        pinched = True
+                    moved = True
+            if use_floor and x[i, 1] < floor + margin:
+                dv = _push(x, v, i, floor + margin - x[i, 1], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+                _record(contact, i, n_caps, first, 0.0, 1.0, 0.0)
+                if first < 0 or first == n_caps:
+                    first = n_caps
+                    dvn += dv
+                    nrm[0], nrm[1], nrm[2] = 0.0, 1.0, 0.0
+                    vel[:] = 0.0
+                else:
+                    pinched = True
+                moved = True
+            if not moved:
+                break
+        if first >= 0 and not pinched:
+            _friction(v, i, nrm, vel, dvn, friction)
+
+
+@_jit
+def _record(contact: F64, i: int, surface: int, first: int, nx: float, ny: float,
+            nz: float) -> None:  # pragma: no cover
+    """Note a contact of particle ``i``: the first surface's normal in ``[0:3]``, a second surface's
+    in ``[3:6]``."""
+    o = 0 if first < 0 or first == surface else 3
+    contact[i, o], contact[i, o + 1], contact[i, o + 2] = nx, ny, nz
+
+
+@_jit
+def penetration(x: F64, a: F64, b: F64, radii: F64, inv_mass: F64, out: F64) -> None:  # pragma: no cover
+    """``out[i]`` = depth (>= 0) of free particle ``i`` inside the union of capsules, else 0."""
+    geo = np.empty((a.shape[0], _GEO_COLS))
+    capsule_geometry(a, b, radii, 0.0, geo)
+    centre = 0.5 * (a + b)
+    for i in range(x.shape[0]):
+        deepest = 0.0
+        if inv_mass[i] > 0.0:
+            for c in range(a.shape[0]):
+                ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
+                if ex * ex + ey * ey + ez * ez < geo[c, 11] * geo[c, 11]:
+                    deepest = max(deepest, -round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo[c])[0])
+        out[i] = deepest

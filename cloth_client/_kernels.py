@@ -1,0 +1,350 @@
+"""Numba kernels for the cloth solver's hot loops.
+
+Each kernel has a plain numpy reference beside the code that uses it (``cloth.py``: spring, drag
+and integration steps; ``constraints.py``: long-range attachments, line solves and Gauss-Seidel
+strain limiting; ``collision.py``: round-cone distance, collision response, penetration - the
+contact kernels themselves live in :mod:`cloth_client._contact_kernels`) and a test checks that
+both give the same numbers. The kernels
+work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps` runs
+all substeps of one cloth step without returning to Python.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._contact_kernels import (
+    COLLISION_PASSES,
+    capsule_geometry,
+    collide,
+    jit_kernel,
+    penetration,
+    round_cone,
+    round_cone_geo,
+)
+
+__all__ = [
+    "COLLISION_PASSES",
+    "capsule_geometry",
+    "collide",
+    "drag_forces",
+    "integrate",
+    "line_limit",
+    "long_range_attach",
+    "penetration",
+    "round_cone",
+    "round_cone_geo",
+    "simulate_substeps",
+    "spring_forces",
+    "strain_limit",
+]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+_jit = jit_kernel
+
+
+@_jit
+def spring_forces(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64, f: F64) -> None:  # pragma: no cover
+    """Add Hooke + axial damping forces of every spring to ``f (N, 3)``."""
+    for s in range(springs.shape[0]):
+        i = springs[s, 0]
+        j = springs[s, 1]
+        dx = x[j, 0] - x[i, 0]
+        dy = x[j, 1] - x[i, 1]
+        dz = x[j, 2] - x[i, 2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        inv = 1.0 / length if length > 1e-12 else 0.0  # branch-free: a zero-length spring exerts nothing
+        ux, uy, uz = dx * inv, dy * inv, dz * inv
+        dvn = (v[j, 0] - v[i, 0]) * ux + (v[j, 1] - v[i, 1]) * uy + (v[j, 2] - v[i, 2]) * uz
+        fs = k[s] * (length - rest[s]) + kd[s] * dvn
+        f[i, 0] += fs * ux
+        f[i, 1] += fs * uy
+        f[i, 2] += fs * uz
+        f[j, 0] -= fs * ux
+        f[j, 1] -= fs * uy
+        f[j, 2] -= fs * uz
+
+
+@_jit
+def drag_forces(x: F64, v: F64, tris: I64, coeff: float, wind: F64, av: F64, f: F64) -> None:  # pragma: no cover
+    """Add quadratic normal air drag ``-coeff * A (v_n |v_n|) n`` to ``f``; ``av`` is scratch (N, 3)."""
+    av[:] = 0.0
+    for t in range(tris.shape[0]):
+        i, j, k = tris[t, 0], tris[t, 1], tris[t, 2]
+        e1x, e1y, e1z = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+        e2x, e2y, e2z = x[k, 0] - x[i, 0], x[k, 1] - x[i, 1], x[k, 2] - x[i, 2]
+        cx = (e1y * e2z - e1z * e2y) / 6.0
+        cy = (e1z * e2x - e1x * e2z) / 6.0
+        cz = (e1x * e2y - e1y * e2x) / 6.0
+        for q in (i, j, k):
+            av[q, 0] += cx
+            av[q, 1] += cy
+            av[q, 2] += cz
+    for i in range(x.shape[0]):
+        area = math.sqrt(av[i, 0] ** 2 + av[i, 1] ** 2 + av[i, 2] ** 2)
+        if area < 1e-16:
+            continue
+        nx, ny, nz = av[i, 0] / area, av[i, 1] / area, av[i, 2] / area
+        vn = (v[i, 0] - wind[0]) * nx + (v[i, 1] - wind[1]) * ny + (v[i, 2] - wind[2]) * nz
+        mag = coeff * area * vn * abs(vn)
+        f[i, 0] -= mag * nx
+        f[i, 1] -= mag * ny
+        f[i, 2] -= mag * nz
+
+
+@_jit
+def integrate(x: F64, v: F64, f: F64, inv_mass: F64, gravity: F64, damp: float, dt: float,
+              xp: F64) -> None:  # pragma: no cover
+    """Semi-implicit Euler: ``v += dt (f/m + g)``, ``v *= damp``, ``x += dt v``; saves ``x`` in ``xp``."""
+    for i in range(x.shape[0]):
+        for d in range(3):
+            xp[i, d] = x[i, d]
+        if inv_mass[i] > 0.0:
+            for d in range(3):
+                v[i, d] = (v[i, d] + dt * (f[i, d] * inv_mass[i] + gravity[d])) * damp
+                x[i, d] += dt * v[i, d]
+
+
+@_jit
+def long_range_attach(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:  # pragma: no cover
+    """Pull every free particle ``i`` back within ``reach[i]`` of particle ``anchor[i]`` (its pin)."""
+    for i in range(x.shape[0]):
+        if inv_mass[i] <= 0.0:
+            continue
+        a = anchor[i]
+        dx, dy, dz = x[i, 0] - x[a, 0], x[i, 1] - x[a, 1], x[i, 2] - x[a, 2]
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dist > reach[i]:
+            s = reach[i] / dist
+            x[i, 0] = x[a, 0] + s * dx
+            x[i, 1] = x[a, 1] + s * dy
+            x[i, 2] = x[a, 2] + s * dz
+
+
+@_jit
+def _move(x: F64, i: int, w: float, dx: float, dy: float, dz: float, contact: F64) -> None:  # pragma: no cover
+    """``x[i] += w * d``, less any component of the move into the surfaces particle ``i`` touches.
+
+    ``contact[i]`` holds up to two unit normals (``[0:3]`` and ``[3:6]``, zero when unused); with
+    two (a crease between body parts) the move is projected alternately until it points into
+    neither surface, so pinched cloth slides along the crease."""
+    mx, my, mz = w * dx, w * dy, w * dz
+    touching = False
+    for o in range(6):
+        touching = touching or contact[i, o] != 0.0
+    if not touching:
+        x[i, 0] += mx
+        x[i, 1] += my
+        x[i, 2] += mz
+        return
+    for _ in range(3):
+        done = True
+        for o in (0, 3):
+            into = mx * contact[i, o] + my * contact[i, o + 1] + mz * contact[i, o + 2]
+            if into < -1e-15:
+                mx -= into * contact[i, o]
+                my -= into * contact[i, o + 1]
+                mz -= into * contact[i, o + 2]
+                done = False
+        if done:
+            break
+    x[i, 0] += mx
+    x[i, 1] += my
+    x[i, 2] += mz
+
+
+@_jit
+def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iterations: int,
+                 contact: F64) -> None:  # pragma: no cover
+    """Provot-style strain limiting: project each spring's length into ``[lo, hi]`` (Gauss-Seidel).
+
+    Odd iterations sweep backwards (symmetric Gauss-Seidel). ``contact (N, 6)`` holds the unit
+    normals of up to two surfaces each particle rests on (zero if none): moves into them are dropped.
+    """
+    n_springs = springs.shape[0]
+    for it in range(iterations):
+        for k in range(n_springs):
+            s = k if it % 2 == 0 else n_springs - 1 - k  # symmetric Gauss-Seidel: alternate sweeps
+            i = springs[s, 0]
+            j = springs[s, 1]
+            dx = x[j, 0] - x[i, 0]
+            dy = x[j, 1] - x[i, 1]
+            dz = x[j, 2] - x[i, 2]
+            length = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if length > hi[s]:
+                target = hi[s]
+            elif length < lo[s]:
+                target = lo[s]
+            else:
+                continue
+            wi = inv_mass[i]
+            wj = inv_mass[j]
+            wsum = wi + wj
+            if wsum <= 0.0 or length < 1e-12:
+                continue
+            c = (length - target) / (length * wsum)
+            _move(x, i, wi * c, dx, dy, dz, contact)
+            _move(x, j, -wj * c, dx, dy, dz, contact)
+
+
+@_jit
+def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float, max_compression: float,
+               contact: F64) -> None:  # pragma: no cover
+    """Strain limiting solved exactly along whole grid lines (one linearised projection per line).
+
+    ``lines (L, m)`` lists the particles of each row (or column) in order and ``rest (L, m - 1)`` the
+    rest lengths between neighbours. On each line the springs outside
+    ``[(1 - max_compression) L, (1 + max_stretch) L]`` form a tridiagonal system
+    ``J W J^T lambda = -C`` solved by the Thomas algorithm, so a pull is carried along the whole
+    line at once. Lines must not share particles. Moves into a touched surface are dropped.
+    """
+    m = lines.shape[1]
+    nx = np.empty((m, 3))
+    cons = np.empty(m)
+    act = np.zeros(m, dtype=np.bool_)
+    cp = np.empty(m)
+    dp = np.empty(m)
+    lam = np.zeros(m)
+    for ln in range(lines.shape[0]):
+        row = lines[ln]
+        for k in range(m - 1):
+            i, j = row[k], row[k + 1]
+            dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+            length = math.sqrt(dx * dx + dy * dy + dz * dz)
+            hi = rest[ln, k] * (1.0 + max_stretch)
+            lo = rest[ln, k] * (1.0 - max_compression)
+            w = inv_mass[i] + inv_mass[j]
+            act[k] = (length > hi or length < lo) and length > 1e-12 and w > 0.0
+            if act[k]:
+                nx[k, 0], nx[k, 1], nx[k, 2] = dx / length, dy / length, dz / length
+                cons[k] = length - (hi if length > hi else lo)
+        any_active = False
+        for k in range(m - 1):  # forward elimination
+            if act[k]:
+                any_active = True
+                b = inv_mass[row[k]] + inv_mass[row[k + 1]]
+                d = -cons[k]
+            else:
+                b = 1.0
+                d = 0.0
+            if k > 0 and act[k] and act[k - 1]:
+                dot = nx[k - 1, 0] * nx[k, 0] + nx[k - 1, 1] * nx[k, 1] + nx[k - 1, 2] * nx[k, 2]
+                a = -inv_mass[row[k]] * dot
+                denom = b - a * cp[k - 1]
+                d -= a * dp[k - 1]
+            else:
+                denom = b
+            if k + 1 < m - 1 and act[k] and act[k + 1]:
+                dot = nx[k, 0] * nx[k + 1, 0] + nx[k, 1] * nx[k + 1, 1] + nx[k, 2] * nx[k + 1, 2]
+                c = -inv_mass[row[k + 1]] * dot
+            else:
+                c = 0.0
+            cp[k] = c / denom
+            dp[k] = d / denom
+        if not any_active:
+            continue
+        lam[m - 2] = dp[m - 2]
+        for k in range(m - 3, -1, -1):  # back substitution
+            lam[k] = dp[k] - cp[k] * lam[k + 1]
+        for k in range(m):
+            mx = my = mz = 0.0
+            if k > 0 and act[k - 1]:
+                mx += lam[k - 1] * nx[k - 1, 0]
+                my += lam[k - 1] * nx[k - 1, 1]
+                mz += lam[k - 1] * nx[k - 1, 2]
+            if k < m - 1 and act[k]:
+                mx -= lam[k] * nx[k, 0]
+                my -= lam[k] * nx[k, 1]
+                mz -= lam[k] * nx[k, 2]
+            _move(x, row[k], inv_mass[row[k]], mx, my, mz, contact)
+
+
+@_jit
+def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
+    k = keys.shape[0] - 1
+    u = min(max(s, 0.0), 1.0) * k
+    i0 = min(int(u), k - 1)
+    w = u - i0
+    out[:] = (1.0 - w) * keys[i0] + w * keys[i0 + 1]
+
+
+@_jit
+def simulate_substeps(
+    x: F64, v: F64, inv_mass: F64, springs: I64, rest: F64, k: F64, kd: F64, tris: I64,
+    drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
+    lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
+    lim_sweeps: int, final_sweeps: int,
+    anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
+    max_stretch: float, max_compression: float,
+    pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
+    margin: float, friction: float, floor: float, use_floor: bool, max_speed: float,
+    n_sub: int, dt_total: float,
+) -> None:  # pragma: no cover
+    """Advance ``x, v`` by ``dt_total`` in ``n_sub`` substeps (same sequence as ``cloth._substeps_np``).
+
+    ``pin_keys (K+1, P, 3)`` and ``cap_a, cap_b (K+1, C, 3)`` are sampled evenly over the step.
+    """
+    n = x.shape[0]
+    dt = dt_total / n_sub
+    damp = 1.0 / (1.0 + mass_damping * dt)
+    f = np.empty((n, 3))
+    xp = np.empty((n, 3))
+    av = np.empty((n, 3))
+    targets = np.empty(pin_keys.shape[1:])
+    a0 = np.empty(cap_a.shape[1:])
+    b0 = np.empty(cap_a.shape[1:])
+    a1 = np.empty(cap_a.shape[1:])
+    b1 = np.empty(cap_a.shape[1:])
+    contact = np.zeros((n, 6))
+    for step in range(n_sub):
+        s0 = step / n_sub
+        s1 = (step + 1) / n_sub
+        f[:] = 0.0
+        spring_forces(x, v, springs, rest, k, kd, f)
+        if drag_coeff > 0.0:
+            drag_forces(x, v, tris, drag_coeff, wind, av, f)
+        integrate(x, v, f, inv_mass, gravity, damp, dt, xp)
+        _lerp_keys(pin_keys, s1, targets)
+        for p in range(pin_idx.shape[0]):
+            i = pin_idx[p]
+            for d in range(3):
+                x[i, d] = targets[p, d]
+                v[i, d] = (targets[p, d] - xp[i, d]) / dt
+        _lerp_keys(cap_a, s0, a0)
+        _lerp_keys(cap_b, s0, b0)
+        _lerp_keys(cap_a, s1, a1)
+        _lerp_keys(cap_b, s1, b1)
+        contact[:] = 0.0
+        for _ in range(lim_iterations):  # strain limiting and contacts, interleaved
+            long_range_attach(x, inv_mass, anchor, reach)
+            for _sweep in range(lim_sweeps):
+                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
+                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
+                line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
+            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1, contact)
+            for i in range(n):
+                if inv_mass[i] > 0.0:
+                    for d in range(3):
+                        v[i, d] = (x[i, d] - xp[i, d]) / dt
+            collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact)
+        # last word to the strain limit, sliding contacts along their surfaces instead of into them
+        for i in range(n):
+            for d in range(3):
+                f[i, d] = x[i, d]
+        for _sweep in range(final_sweeps):
+            line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
+            line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
+            line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
+        strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
+        for i in range(n):
+            for d in range(3):
+                v[i, d] += (x[i, d] - f[i, d]) / dt
+        for i in range(n):
+            sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
+            if sp > max_speed and inv_mass[i] > 0.0:
+                for d in range(3):
+                    v[i, d] *= max_speed / sp

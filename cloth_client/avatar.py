@@ -1,0 +1,206 @@
+"""The avatar the cloth is simulated on: body capsules and pin frames from a ``BodyInfo`` and poses.
+
+Received poses arrive at 15-120 Hz, sometimes with gaps. Between two of them the avatar is moved
+along an articulated interpolation (root position linear, every joint rotation slerped), sampled at
+``K + 1`` key instants per cloth step and run through :func:`protocol.fk_global`, so a forearm
+swings on an arc instead of cutting a chord through the cloth. A jump no human can make (a joint
+faster than :attr:`Continuity.max_joint_speed`, the root faster than
+:attr:`Continuity.max_root_speed`, or a gap longer than :attr:`Continuity.max_gap_s`) is a
+*discontinuity* (tracker re-initialisation, teleport): :mod:`cloth_client.driver` then carries the
+cloth along with the root's rigid motion instead of dragging it through the jump.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.kinematics import fk_global
+from protocol.messages import BodyInfo, body_from_body_info
+from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
+from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
+
+from .collision import CapsuleTrack, round_cone_np
+
+__all__ = [
+    "AvatarKeys",
+    "Continuity",
+    "body_of",
+    "capsule_endpoints",
+    "interpolate_poses",
+    "is_discontinuity",
+    "pose_keys",
+    "rigid_root_delta",
+]
+
+F64 = NDArray[np.float64]
+
+
+def body_of(info: BodyInfo | Body) -> Body:
+    """The :class:`~protocol.skeleton.Body` of a ``BodyInfo`` (rebuilt) or a ``Body`` (unchanged)."""
+    return info if isinstance(info, Body) else body_from_body_info(info)
+
+
+def capsule_endpoints(body: Body, poses: F64) -> tuple[F64, F64]:
+    """World endpoints of every body capsule.
+
+    Parameters
+    ----------
+    body : Body
+    poses : (N, P) or (P,) float64
+
+    Returns
+    -------
+    a, b : (N, C, 3) float64
+        (``(C, 3)`` for a single pose), metres.
+    """
+    joints, _ = fk_global(poses, body)
+    return joints[..., CAPSULE_JOINTS[:, 0], :], joints[..., CAPSULE_JOINTS[:, 1], :]
+
+
+def _rotvec_from_quat(q: F64) -> F64:
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    theta = 2.0 * np.arctan2(s, q[..., 0])
+    scale = np.where(s < 1e-12, 2.0, theta / np.maximum(s, 1e-300))
+    out: F64 = v * scale[..., None]
+    return out
+
+
+def interpolate_poses(p0: F64, p1: F64, s: F64) -> F64:
+    """Articulated interpolation between two poses.
+
+    Parameters
+    ----------
+    p0, p1 : (P,) float64
+        Poses at fraction 0 and 1.
+    s : (K,) float64
+        Fractions in [0, 1].
+
+    Returns
+    -------
+    (K, P) float64
+        Root position linear, root and joint rotations slerped along the shorter arc.
+    """
+    s = np.asarray(s, dtype=np.float64)
+    q0 = matrix_to_quat(rotvec_to_matrix(p0[3:].reshape(-1, 3)))  # (R, 4)
+    q1 = matrix_to_quat(rotvec_to_matrix(p1[3:].reshape(-1, 3)))
+    q = quat_slerp(q0[None], q1[None], np.broadcast_to(s[:, None], (len(s), len(q0))))
+    out = np.empty((len(s), POSE_SIZE))
+    out[:, :3] = (1.0 - s[:, None]) * p0[:3] + s[:, None] * p1[:3]
+    out[:, 3:] = _rotvec_from_quat(q).reshape(len(s), -1)
+    return out
+
+
+@dataclass(frozen=True)
+class AvatarKeys:
+    """The avatar sampled at ``K + 1`` evenly spaced instants of one cloth step.
+
+    Attributes
+    ----------
+    track : CapsuleTrack
+        Capsule endpoints per key, ``(K + 1, C, 3)``.
+    joints : (K + 1, J, 3) float64
+        Joint positions per key.
+    rotations : (K + 1, J, 3, 3) float64
+        Global joint orientations per key (for pin targets).
+    """
+
+    track: CapsuleTrack
+    joints: F64
+    rotations: F64
+
+    def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64) -> F64:
+        """World positions ``(K + 1, P, 3)`` of pins given by joint index and joint-frame offset."""
+        r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
+        out: F64 = self.joints[:, pin_joint] + np.einsum("kpij,pj->kpi", r, pin_local)
+        return out
+
+
+    def push_out(self, points: F64, clearance: float) -> F64:
+        """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
+        (two projection passes over the nearest capsule)."""
+        out = points.copy()
+        radii = self.track.radii
+        for k in range(len(out)):
+            for _ in range(2):
+                d, n, _t = round_cone_np(out[k], self.track.a[k], self.track.b[k], radii[:, 0], radii[:, 1])
+                c = np.argmin(d, axis=1)
+                depth = clearance - d[np.arange(len(c)), c]
+                inside = depth > 0
+                out[k, inside] += depth[inside, None] * n[inside, c[inside]]
+        return out
+
+    def covered(self, points: F64, margin: float) -> NDArray[np.bool_]:
+        """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``
+        (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband."""
+        out = np.zeros(points.shape[1], dtype=bool)
+        for k in range(points.shape[0]):
+            d, _, _ = round_cone_np(points[k], self.track.a[k], self.track.b[k], self.track.radii[:, 0],
+                                    self.track.radii[:, 1])
+            out |= d.min(axis=1) < margin
+        return out
+
+
+def pose_keys(body: Body, poses: F64) -> AvatarKeys:
+    """Capsules and joint frames of a pose sequence ``(K + 1, P)`` (one FK call for all keys)."""
+    joints, rot = fk_global(np.atleast_2d(poses), body)
+    a = joints[:, CAPSULE_JOINTS[:, 0]]
+    b = joints[:, CAPSULE_JOINTS[:, 1]]
+    return AvatarKeys(CapsuleTrack(a, b, body.capsule_radii), joints, rot)
+
+
+@dataclass(frozen=True)
+class Continuity:
+    """Thresholds that separate fast human motion from a jump of the input.
+
+    Attributes
+    ----------
+    max_joint_speed : float
+        m/s; the fastest human joint motion (a kicking foot, a throwing hand) stays below ~20 m/s.
+    max_root_speed : float
+        m/s; a sprint reaches ~10 m/s.
+    max_gap_s : float
+        Longest gap between two frames that is still bridged by interpolation, seconds.
+    """
+
+    max_joint_speed: float = 25.0
+    max_root_speed: float = 12.0
+    max_gap_s: float = 0.5
+
+
+def is_discontinuity(body: Body, p0: F64, p1: F64, dt: float, limits: Continuity | None = None) -> bool:
+    """True if going from pose ``p0`` to ``p1`` in ``dt`` seconds is not a plausible human motion.
+
+    Parameters
+    ----------
+    body : Body
+    p0, p1 : (P,) float64
+    dt : float
+        Time between the two poses, seconds (<= 0 counts as a discontinuity).
+    limits : Continuity, optional
+    """
+    lim = limits or Continuity()
+    if not dt > 0 or dt > lim.max_gap_s:
+        return True
+    if np.linalg.norm(p1[:3] - p0[:3]) > lim.max_root_speed * dt:
+        return True
+    j0, _ = fk_global(p0, body)
+    j1, _ = fk_global(p1, body)
+    return bool(np.linalg.norm(j1 - j0, axis=-1).max() > lim.max_joint_speed * dt)
+
+
+def rigid_root_delta(p0: F64, p1: F64) -> tuple[F64, F64]:
+    """Rigid motion ``x -> R x + t`` that carries the root frame of pose ``p0`` onto that of ``p1``.
+
+    Returns
+    -------
+    R : (3, 3) float64
+    t : (3,) float64
+    """
+    r0 = rotvec_to_matrix(p0[3:6])
+    r1 = rotvec_to_matrix(p1[3:6])
+    rot: F64 = r1 @ r0.T
+    return rot, p1[:3] - rot @ p0[:3]

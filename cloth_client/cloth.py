@@ -1,0 +1,400 @@
+"""Mass-spring cloth solver: a pure step function over particle positions and velocities.
+
+One call of :func:`step` advances the cloth by ``dt`` (one received frame) in ``n`` substeps, each
+
+1. forces: gravity, Hooke springs with axial damping (structural, shear, bending), quadratic air
+   drag on the particle's normal velocity (``0.5 rho_air C_d A v_n |v_n|``);
+2. semi-implicit (symplectic) Euler, with mass-proportional damping ``v /= 1 + c dt``;
+3. pinned particles placed on their targets (interpolated between the step's keys);
+4. strain limiting (:mod:`cloth_client.constraints`): long-range attachments, line solves and
+   Gauss-Seidel sweeps, interleaved with collision, then a final contact-aware pass; velocities
+   follow the corrected positions;
+5. collision with the body capsules and the floor (:mod:`cloth_client.collision`);
+6. a speed clamp as the last guard against a blow-up.
+
+``n`` is the smallest count that (a) keeps the explicit springs stable (largest eigenvalue of the
+mass-normalised stiffness matrix, with a margin for stretched springs, reduced for the spring
+damping), (b) respects ``max_substep_dt``, and (c) lets no capsule move more than ``max_travel``
+of its radius per substep (continuous collision), capped at ``max_substeps``.
+
+The numba kernels in :mod:`cloth_client._kernels` run the substeps; ``backend="numpy"`` runs the
+plain numpy references below, which tests compare against the kernels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.linalg import ArpackNoConvergence, eigsh
+
+from . import _kernels as K
+from .collision import CapsuleTrack, collide_np, interpolate_keys, max_relative_travel
+from .constraints import line_limit_np, long_range_attach_np, strain_limit_np
+from .garment import Garment
+
+__all__ = [
+    "ClothModel",
+    "ClothParams",
+    "ClothState",
+    "build_model",
+    "energy",
+    "initial_state",
+    "plan_substeps",
+    "step",
+    "structural_strain",
+]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class ClothParams:
+    """Physical and numerical parameters (SI units).
+
+    Attributes
+    ----------
+    stretch_stiffness, shear_stiffness, bend_stiffness : float
+        Spring constants per spring, N/m. Deliberately soft (explicit stability at real-time
+        substeps); strain limiting, not the springs, keeps the cloth from stretching.
+    damping_ratio : float
+        Axial damping of each spring as a fraction of its critical damping.
+    mass_damping : float
+        Global velocity damping, 1/s.
+    air_density, drag_coefficient : float
+        kg/m^3 and the dimensionless normal drag coefficient of a flat sheet.
+    gravity, wind : tuple of float
+        m/s^2 and m/s, world frame (Y up).
+    max_stretch, max_compression : float
+        Strain limits of the structural springs (0.05 = 5 %).
+    limit_iterations : int
+        Gauss-Seidel sweeps of strain limiting per substep.
+    friction : float
+        Coulomb coefficient between cloth and body / floor.
+    margin : float
+        Cloth half thickness kept from the body, metres.
+    floor : float or None
+        Floor height (None: no floor).
+    max_substep_dt : float
+        Upper bound on the substep, seconds.
+    max_travel : float
+        Largest capsule motion per substep, in capsule radii.
+    max_substeps : int
+        Cap on substeps per step.
+    max_speed : float
+        Particle speed clamp, m/s.
+    stability_safety : float
+        Fraction of the explicit stability limit used.
+    """
+
+    stretch_stiffness: float = 2.0
+    shear_stiffness: float = 0.5
+    bend_stiffness: float = 0.25
+    damping_ratio: float = 0.1
+    mass_damping: float = 0.3
+    air_density: float = 1.2
+    drag_coefficient: float = 1.0
+    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_stretch: float = 0.03
+    max_compression: float = 0.10
+    limit_iterations: int = 2
+    limit_sweeps: int = 1
+    final_sweeps: int = 2
+    tethers: bool = True
+    friction: float = 0.2
+    margin: float = 0.006
+    floor: float | None = 0.0
+    max_substep_dt: float = 1.0 / 240.0
+    max_travel: float = 0.5
+    max_substeps: int = 48
+    max_speed: float = 30.0
+    stability_safety: float = 0.9
+
+
+@dataclass(frozen=True)
+class ClothModel:
+    """A garment compiled with its parameters into the flat arrays the kernels use.
+
+    Attributes
+    ----------
+    garment : Garment
+    params : ClothParams
+    springs : (S, 2) int64
+        Structural, shear and bending springs concatenated.
+    rest, k, kd : (S,) float64
+        Rest length (m), stiffness (N/m) and axial damping (N s/m) per spring.
+    inv_mass : (N,) float64
+        0 for pinned particles.
+    reach : (N,) float64
+        Long-range attachment radius of every particle around ``garment.anchor``, metres.
+    lines_v, lines_h : (cols, rows) and (rows, cols) int64
+        Particles of every grid column and row, in order (for the line solves).
+    rest_v, rest_h : (cols, rows - 1) and (rows, cols - 1) float64
+        Rest lengths between neighbours along those lines, metres.
+    lines_s, rest_s : int64, float64
+        For a garment wrapping round, the rows again with the seam moved half-way round (so the
+        row solves also carry tension across the seam); empty ``(0, 2)`` otherwise.
+    lim_springs : (L, 2) int64
+    lim_lo, lim_hi : (L,) float64
+        Structural springs in strain-limiting order (``garment.limit_springs``) and their length
+        bounds (m).
+    stable_dt : float
+        Largest stable substep, seconds.
+    """
+
+    garment: Garment
+    params: ClothParams
+    springs: I64
+    rest: F64
+    k: F64
+    kd: F64
+    inv_mass: F64
+    reach: F64
+    lines_v: I64
+    rest_v: F64
+    lines_h: I64
+    rest_h: F64
+    lines_s: I64
+    rest_s: F64
+    lim_springs: I64
+    lim_lo: F64
+    lim_hi: F64
+    stable_dt: float
+
+
+@dataclass
+class ClothState:
+    """Positions ``x (N, 3)`` and velocities ``v (N, 3)`` (float64, m and m/s) at time ``t`` (s);
+    ``substeps`` counts the substeps taken so far."""
+
+    x: F64
+    v: F64
+    t: float = 0.0
+    substeps: int = field(default=0)
+
+    def copy(self) -> ClothState:
+        return ClothState(self.x.copy(), self.v.copy(), self.t, self.substeps)
+
+
+def build_model(garment: Garment, params: ClothParams | None = None) -> ClothModel:
+    """Compile ``garment`` and ``params`` into a :class:`ClothModel` (also computes the stable substep)."""
+    p = params or ClothParams()
+    g = garment
+    springs = np.concatenate([g.structural, g.shear, g.bend])
+    rest = np.concatenate([g.structural_rest, g.shear_rest, g.bend_rest])
+    k = np.concatenate([np.full(len(g.structural), p.stretch_stiffness), np.full(len(g.shear), p.shear_stiffness),
+                        np.full(len(g.bend), p.bend_stiffness)])
+    mi, mj = g.mass[springs[:, 0]], g.mass[springs[:, 1]]
+    kd = p.damping_ratio * 2.0 * np.sqrt(k * mi * mj / (mi + mj))
+    inv_mass = 1.0 / g.mass
+    inv_mass[g.pin_index] = 0.0
+    rl = g.limit_rest
+    z = p.damping_ratio
+    omega = math.sqrt(_max_eigenvalue(g.rest, springs, k, inv_mass) * (1.0 + p.max_stretch))
+    stable = p.stability_safety * 2.0 / omega * (math.sqrt(1.0 + z * z) - z)
+    reach = g.anchor_dist * (1.0 + p.max_stretch) if p.tethers else np.full(g.n_particles, np.inf)
+    idx = np.arange(g.n_particles, dtype=np.int64).reshape(g.grid_shape)
+    lines_v, lines_h = np.ascontiguousarray(idx.T), idx
+    lines_s = np.ascontiguousarray(np.roll(idx, -(idx.shape[1] // 2), axis=1)) if g.wrap else np.zeros((0, 2), np.int64)
+
+    def line_rest(lines: I64) -> F64:
+        out: F64 = np.linalg.norm(g.rest[lines[:, 1:]] - g.rest[lines[:, :-1]], axis=-1)
+        return out
+
+    return ClothModel(g, p, np.ascontiguousarray(springs), rest, k, kd, inv_mass, reach, lines_v, line_rest(lines_v),
+                      lines_h, line_rest(lines_h), lines_s, line_rest(lines_s), np.ascontiguousarray(g.limit_springs),
+                      rl * (1.0 - p.max_compression), rl * (1.0 + p.max_stretch), stable)
+
+
+def _max_eigenvalue(x: F64, springs: I64, k: F64, inv_mass: F64) -> float:
+    """Largest eigenvalue of ``M^-1/2 K M^-1/2`` over the free particles at configuration ``x``
+    (``K`` the springs' stiffness matrix; its square root is the highest angular frequency, 1/s).
+    Falls back to the Gershgorin bound if ARPACK does not converge."""
+    n = len(x)
+    d = x[springs[:, 1]] - x[springs[:, 0]]
+    u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+    blocks = (k[:, None, None] * u[:, :, None] * u[:, None, :]).reshape(-1, 9)
+    comp_r, comp_c = np.divmod(np.arange(9), 3)
+    rows, cols, vals = [], [], []
+    for ii, jj, sign in ((0, 0, 1.0), (1, 1, 1.0), (0, 1, -1.0), (1, 0, -1.0)):
+        rows.append((3 * springs[:, ii, None] + comp_r).ravel())
+        cols.append((3 * springs[:, jj, None] + comp_c).ravel())
+        vals.append(sign * blocks.ravel())
+    w = np.repeat(np.sqrt(inv_mass), 3)
+    stiff = coo_matrix((np.concatenate(vals) * w[np.concatenate(rows)] * w[np.concatenate(cols)],
+                        (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n)).tocsr()
+    try:
+        return float(eigsh(stiff, k=1, which="LA", return_eigenvectors=False, tol=1e-4)[0])
+    except ArpackNoConvergence:
+        return float(np.abs(stiff).sum(axis=1).max())
+
+
+def initial_state(model: ClothModel, x: F64 | None = None, t: float = 0.0) -> ClothState:
+    """Cloth at rest at ``x`` (default: the garment's rest shape)."""
+    pos = np.array(model.garment.rest if x is None else x, dtype=np.float64)
+    return ClothState(pos, np.zeros_like(pos), t)
+
+
+def plan_substeps(model: ClothModel, track: CapsuleTrack, dt: float) -> int:
+    """Number of substeps for a step of ``dt`` seconds with body motion ``track`` (see module doc)."""
+    p = model.params
+    limit_dt = min(p.max_substep_dt, model.stable_dt)
+    n = max(1, math.ceil(dt / limit_dt - 1e-9), math.ceil(max_relative_travel(track) / p.max_travel - 1e-9))
+    return int(min(n, max(p.max_substeps, math.ceil(dt / model.stable_dt - 1e-9))))
+
+
+def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F64, dt: float, *,
+         released: NDArray[np.bool_] | None = None, n_substeps: int | None = None, extra_damping: float = 0.0,
+         backend: str = "numba") -> ClothState:
+    """Advance the cloth by ``dt`` seconds.
+
+    Parameters
+    ----------
+    state : ClothState
+        Not modified.
+    model : ClothModel
+    track : CapsuleTrack
+        Body capsules at ``K + 1`` evenly spaced instants of the step.
+    pin_keys : (K' + 1, P, 3) float64
+        Pin targets at evenly spaced instants of the step (``K'`` may differ from ``K``).
+    dt : float
+        Step length, seconds (> 0).
+    released : (P,) bool, optional
+        Pins let go for this step (they move freely, e.g. while a body part covers their target).
+    n_substeps : int, optional
+        Force the substep count (default: :func:`plan_substeps`).
+    extra_damping : float
+        Added to ``params.mass_damping`` for this step, 1/s (used to calm the cloth after a reset).
+    backend : {"numba", "numpy"}
+
+    Returns
+    -------
+    ClothState
+        The new state at ``state.t + dt``.
+    """
+    if not dt > 0:
+        raise ValueError(f"dt must be positive, got {dt}")
+    n = n_substeps if n_substeps is not None else plan_substeps(model, track, dt)
+    x, v = state.x.copy(), state.v.copy()
+    p = model.params
+    pins = np.ascontiguousarray(pin_keys, dtype=np.float64)
+    if pins.ndim != 3 or pins.shape[1:] != (len(model.garment.pin_index), 3) or pins.shape[0] < 2:
+        raise ValueError(f"pin_keys must be (K+1 >= 2, {len(model.garment.pin_index)}, 3), got {pins.shape}")
+    inv_mass, pin_idx = model.inv_mass, model.garment.pin_index
+    if released is not None and released.any():
+        inv_mass = inv_mass.copy()
+        inv_mass[pin_idx[released]] = 1.0 / model.garment.mass[pin_idx[released]]
+        pin_idx, pins = pin_idx[~released], np.ascontiguousarray(pins[:, ~released])
+    if backend == "numba":
+        K.simulate_substeps(
+            x, v, inv_mass, model.springs, model.rest, model.k, model.kd, model.garment.triangles,
+            0.5 * p.air_density * p.drag_coefficient, np.asarray(p.wind, dtype=np.float64),
+            np.asarray(p.gravity, dtype=np.float64), p.mass_damping + extra_damping,
+            model.lim_springs, model.lim_lo, model.lim_hi, p.limit_iterations, p.limit_sweeps, p.final_sweeps,
+            model.garment.anchor, model.reach,
+            model.lines_v, model.rest_v, model.lines_h, model.rest_h, model.lines_s, model.rest_s,
+            p.max_stretch, p.max_compression,
+            pin_idx, pins, track.a, track.b,
+            track.radii,
+            p.margin, p.friction, 0.0 if p.floor is None else p.floor, p.floor is not None, p.max_speed, n, dt)
+    elif backend == "numpy":
+        _substeps_np(x, v, model, inv_mass, pin_idx, track, pins, n, dt, p.mass_damping + extra_damping)
+    else:
+        raise ValueError(f"unknown backend {backend!r}")
+    return ClothState(x, v, state.t + dt, state.substeps + n)
+
+
+# --- numpy references of the kernels -------------------------------------------------------------------
+
+def spring_forces_np(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64) -> F64:
+    """Hooke + axial damping forces ``(N, 3)`` of ``springs (S, 2)`` (reference of ``K.spring_forces``)."""
+    d = x[springs[:, 1]] - x[springs[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    ok = length > 1e-12
+    u = np.where(ok[:, None], d / np.where(ok, length, 1.0)[:, None], 0.0)
+    dvn = np.einsum("ij,ij->i", v[springs[:, 1]] - v[springs[:, 0]], u)
+    fs = np.where(ok, k * (length - rest) + kd * dvn, 0.0)[:, None] * u
+    f = np.zeros_like(x)
+    for c in range(3):
+        f[:, c] = np.bincount(springs[:, 0], fs[:, c], len(x)) - np.bincount(springs[:, 1], fs[:, c], len(x))
+    return f
+
+
+def drag_forces_np(x: F64, v: F64, tris: I64, coeff: float, wind: F64) -> F64:
+    """Quadratic normal air drag ``(N, 3)`` (reference of ``K.drag_forces``)."""
+    c = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]) / 6.0
+    av = np.stack([np.bincount(tris.ravel(), np.repeat(c[:, d], 3), len(x)) for d in range(3)], axis=1)
+    area = np.linalg.norm(av, axis=1)
+    n = av / np.maximum(area, 1e-300)[:, None]
+    vn = np.einsum("ij,ij->i", v - wind, n)
+    out: F64 = np.where((area >= 1e-16)[:, None], -(coeff * area * vn * np.abs(vn))[:, None] * n, 0.0)
+    return out
+
+
+def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: int) -> None:
+    p = model.params
+    for _ in range(sweeps):
+        for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h),
+                            (model.lines_s, model.rest_s)):
+            line_limit_np(x, inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
+
+
+def _substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,
+                 n: int, dt_total: float, mass_damping: float) -> None:
+    p, g = model.params, model.garment
+    dt = dt_total / n
+    free = inv_mass > 0
+    grav, wind = np.asarray(p.gravity), np.asarray(p.wind)
+    for step_i in range(n):
+        s0, s1 = step_i / n, (step_i + 1) / n
+        f = spring_forces_np(x, v, model.springs, model.rest, model.k, model.kd)
+        if p.air_density * p.drag_coefficient > 0:
+            f += drag_forces_np(x, v, g.triangles, 0.5 * p.air_density * p.drag_coefficient, wind)
+        xp = x.copy()
+        v[free] = (v[free] + dt * (f[free] * inv_mass[free, None] + grav)) / (1.0 + mass_damping * dt)
+        x[free] += dt * v[free]
+        target = interpolate_keys(pins, s1)
+        x[pin_idx] = target
+        v[pin_idx] = (target - xp[pin_idx]) / dt
+        a0, b0 = track.at(s0)
+        a1, b1 = track.at(s1)
+        contact = np.zeros((len(x), 6))
+        for _ in range(p.limit_iterations):
+            long_range_attach_np(x, inv_mass, g.anchor, model.reach)
+            _line_pass(x, model, inv_mass, contact, p.limit_sweeps)
+            strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
+            v[free] = (x[free] - xp[free]) / dt
+            collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact)
+        before = x.copy()
+        _line_pass(x, model, inv_mass, contact, p.final_sweeps)
+        strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
+                        1 if p.final_sweeps > 0 else 0, contact)
+        v += (x - before) / dt
+        speed = np.linalg.norm(v, axis=1)
+        fast = free & (speed > p.max_speed)
+        v[fast] *= (p.max_speed / speed[fast])[:, None]
+
+
+# --- diagnostics ---------------------------------------------------------------------------------------
+
+def structural_strain(model: ClothModel, x: F64) -> F64:
+    """Engineering strain ``(l - L) / L`` of every structural spring, ``(S_structural,)``."""
+    g = model.garment
+    out: F64 = np.linalg.norm(x[g.structural[:, 1]] - x[g.structural[:, 0]], axis=1) / g.structural_rest - 1.0
+    return out
+
+
+def energy(model: ClothModel, state: ClothState) -> dict[str, float]:
+    """Kinetic, gravitational (relative to y = 0) and elastic energy of the cloth, joules."""
+    m = model.garment.mass
+    kinetic = 0.5 * float(np.sum(m * np.einsum("ij,ij->i", state.v, state.v)))
+    potential = -float(np.sum(m * (state.x @ np.asarray(model.params.gravity))))
+    d = np.linalg.norm(state.x[model.springs[:, 1]] - state.x[model.springs[:, 0]], axis=1) - model.rest
+    elastic = 0.5 * float(np.sum(model.k * d * d))
+    return {"kinetic": kinetic, "potential": potential, "elastic": elastic,
+            "total": kinetic + potential + elastic}

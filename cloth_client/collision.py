@@ -1,0 +1,311 @@
+"""Cloth-vs-body collision: points against tapered capsules ("round cones") and the floor.
+
+A body capsule is the convex hull of two spheres, radius ``ra`` at ``a`` and ``rb`` at ``b``. Its
+signed distance and outward normal are exact (not the common "interpolated radius" approximation).
+In the (axial ``y``, radial ``rho``) half-plane of a point, the cone's side is the line tangent to
+both circles, with unit normal ``(sin phi, cos phi)``, ``sin phi = (ra - rb) / |b - a|``; the point
+belongs to sphere ``a``, the side, or sphere ``b`` according to its coordinate ``tau`` along that
+tangent line.
+
+Continuity
+----------
+Body motion within one cloth step is given as a :class:`CapsuleTrack`: capsule endpoints at
+``K + 1`` evenly spaced instants (from articulated interpolation of the pose, see
+:mod:`cloth_client.avatar`). The solver linearly interpolates between these keys at every substep
+and picks enough substeps that no capsule surface moves more than a fraction of its radius per
+substep (:func:`max_relative_travel`), so a fast arm swing cannot jump over a cloth particle.
+
+Response
+--------
+A particle closer than ``margin`` (the cloth's half thickness) to a capsule is projected onto the
+offset surface and the normal component of its velocity relative to the capsule surface is removed
+if approaching. After all passes, a particle that touched a single surface has its tangential
+velocity relative to it reduced by Coulomb friction ``mu * |dv_n|``; cloth squeezed between two
+body parts gets no friction (each would drag it its own way and tear it). Capsules
+are treated one after another per particle (Gauss-Seidel); a particle that was moved gets another
+pass (up to :data:`COLLISION_PASSES`, the floor included in each), which works cloth caught where
+two capsules overlap, or a capsule meets the floor, out to the outside of their union. The normals
+of up to two surfaces each particle touches are recorded for the contact-aware strain limiting
+that follows (cloth pinched in a crease may then only slide along it).
+
+The numba kernels in :mod:`cloth_client._kernels` implement the same operations; the functions
+here are their plain numpy references (tests check that both agree).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "CapsuleTrack",
+    "collide_np",
+    "max_relative_travel",
+    "penetration_np",
+    "round_cone_np",
+]
+
+F64 = NDArray[np.float64]
+_TINY = 1e-12
+
+
+@dataclass(frozen=True)
+class CapsuleTrack:
+    """Body capsules sampled at ``K + 1`` evenly spaced instants of one cloth step.
+
+    Attributes
+    ----------
+    a, b : (K + 1, C, 3) float64
+        Endpoint positions, metres; key 0 is the start of the step, key K its end.
+    radii : (C, 2) float64
+        Radius at ``a`` and at ``b`` of every capsule, metres.
+    """
+
+    a: F64
+    b: F64
+    radii: F64
+
+    def __post_init__(self) -> None:
+        a = np.ascontiguousarray(self.a, dtype=np.float64)
+        b = np.ascontiguousarray(self.b, dtype=np.float64)
+        r = np.ascontiguousarray(self.radii, dtype=np.float64)
+        if a.ndim != 3 or a.shape[0] < 2 or a.shape[2] != 3 or b.shape != a.shape:
+            raise ValueError(f"a and b must both be (K+1 >= 2, C, 3), got {a.shape} and {b.shape}")
+        if r.shape != (a.shape[1], 2) or not np.all(r > 0):
+            raise ValueError(f"radii must be ({a.shape[1]}, 2) and positive, got {r.shape}")
+        object.__setattr__(self, "a", a)
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "radii", r)
+
+    @classmethod
+    def static(cls, a: F64, b: F64, radii: F64) -> CapsuleTrack:
+        """A track whose capsules do not move: ``a, b (C, 3)`` repeated at both ends of the step."""
+        a2 = np.broadcast_to(np.asarray(a, dtype=np.float64), (2, *np.shape(a)))
+        b2 = np.broadcast_to(np.asarray(b, dtype=np.float64), (2, *np.shape(b)))
+        return cls(a2, b2, radii)
+
+    @property
+    def n_keys(self) -> int:
+        """Number of key instants ``K + 1``."""
+        return int(self.a.shape[0])
+
+    def at(self, s: float) -> tuple[F64, F64]:
+        """Endpoints ``(a, b)``, each ``(C, 3)``, at fraction ``s`` in [0, 1] of the step."""
+        return interpolate_keys(self.a, s), interpolate_keys(self.b, s)
+
+
+def interpolate_keys(keys: F64, s: float) -> F64:
+    """Linear interpolation of ``keys (K + 1, ...)`` sampled evenly over [0, 1], at ``s``.
+
+    Parameters
+    ----------
+    keys : (K + 1, ...) float64
+    s : float
+        Clipped to [0, 1].
+
+    Returns
+    -------
+    (...) float64
+    """
+    k = keys.shape[0] - 1
+    u = min(max(float(s), 0.0), 1.0) * k
+    i = min(int(u), k - 1)
+    w = u - i
+    out: F64 = (1.0 - w) * keys[i] + w * keys[i + 1]
+    return out
+
+
+def max_relative_travel(track: CapsuleTrack) -> float:
+    """Largest distance any capsule endpoint moves between two keys, in units of that capsule's
+    smaller radius, times the number of key intervals (so it is comparable with one whole step).
+
+    Returns
+    -------
+    float
+        ``n`` substeps keep each capsule's per-substep travel below ``value / n`` radii.
+    """
+    da = np.linalg.norm(np.diff(track.a, axis=0), axis=-1)  # (K, C)
+    db = np.linalg.norm(np.diff(track.b, axis=0), axis=-1)
+    rmin = track.radii.min(axis=1)
+    rel = np.maximum(da, db) / rmin
+    return float(rel.max() * (track.n_keys - 1)) if rel.size else 0.0
+
+
+def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F64]:
+    """Signed distance, outward normal and axial parameter of points against round cones.
+
+    Parameters
+    ----------
+    p : (N, 3) float64
+        Points.
+    a, b : (C, 3) float64
+        Capsule endpoints.
+    ra, rb : (C,) float64
+        Radii at ``a`` and ``b``.
+
+    Returns
+    -------
+    dist : (N, C) float64
+        Signed distance to the surface (negative inside), metres.
+    normal : (N, C, 3) float64
+        Unit outward normal of the closest surface point.
+    t : (N, C) float64
+        Position of the closest point along the axis, 0 at ``a`` and 1 at ``b``.
+    """
+    ba = b - a
+    length = np.linalg.norm(ba, axis=-1)
+    # A sphere contains the other (or the segment is degenerate): keep the bigger sphere only.
+    engulf = np.abs(ra - rb) >= length - 1e-9
+    big_b = engulf & (rb > ra)
+    ca = np.where(big_b[:, None], b, a)
+    r1 = np.where(engulf, np.maximum(ra, rb), ra)
+    safe_len = np.where(engulf, 1.0, length)
+    u = ba / safe_len[:, None]
+    sin_phi = np.where(engulf, 0.0, (ra - rb) / safe_len)
+    cos_phi = np.sqrt(np.maximum(1.0 - sin_phi**2, 0.0))
+
+    pa = p[:, None, :] - ca[None]  # (N, C, 3)
+    y = np.einsum("ncj,cj->nc", pa, u)
+    w = pa - y[..., None] * u[None]
+    rho = np.linalg.norm(w, axis=-1)
+    # radial unit vector; on the axis pick any perpendicular of u
+    perp = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    perp /= np.maximum(np.linalg.norm(perp, axis=-1, keepdims=True), _TINY)
+    w_hat = np.where((rho > 1e-12)[..., None], w / np.maximum(rho, _TINY)[..., None], perp[None])
+
+    tau = y * cos_phi - rho * sin_phi
+    in_a = engulf[None] | (tau < 0.0)
+    in_b = ~in_a & (tau > safe_len * cos_phi)
+    pb = p[:, None, :] - b[None]
+    da = np.linalg.norm(pa, axis=-1)
+    db = np.linalg.norm(pb, axis=-1)
+    side_n = sin_phi[None, :, None] * u[None] + cos_phi[None, :, None] * w_hat
+    na = np.where((da > 1e-12)[..., None], pa / np.maximum(da, _TINY)[..., None], side_n)
+    nb = np.where((db > 1e-12)[..., None], pb / np.maximum(db, _TINY)[..., None], side_n)
+    dist = np.where(in_a, da - r1, np.where(in_b, db - rb, y * sin_phi + rho * cos_phi - ra))
+    normal = np.where(in_a[..., None], na, np.where(in_b[..., None], nb, side_n))
+    t = np.where(engulf[None], np.where(big_b, 1.0, 0.0)[None], np.clip(y / safe_len, 0.0, 1.0))
+    t = np.where(in_a & ~engulf[None], 0.0, np.where(in_b, 1.0, t))
+    return dist, normal, t
+
+
+#: Most projection passes over the capsules per particle (only particles moved in a pass get another).
+COLLISION_PASSES = 4
+
+
+def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:
+    """Move ``x[hit]`` by ``push * n`` and cancel the approach to the surface moving at ``vs``;
+    returns the normal velocity change ``(N,)`` (0 where not hit)."""
+    x[hit] += push[hit, None] * n[hit]
+    vn = np.einsum("ij,ij->i", v - vs, n)
+    cancel = hit & (vn < 0.0)
+    v[cancel] -= vn[cancel, None] * n[cancel]
+    out: F64 = np.where(cancel, -vn, 0.0)
+    return out
+
+
+def _friction(v: F64, sel: NDArray[np.bool_], n: F64, vs: F64, dvn: F64, friction: float) -> None:
+    """Coulomb friction on ``v[sel]``: tangential speed relative to the surface reduced by ``friction * dvn``."""
+    r = v[sel] - vs[sel]
+    vn = np.einsum("ij,ij->i", r, n[sel])
+    t = r - vn[:, None] * n[sel]
+    vt = np.linalg.norm(t, axis=1)
+    scale = np.where(vt > 1e-12, np.maximum(0.0, 1.0 - friction * dvn[sel] / np.maximum(vt, _TINY)) - 1.0, 0.0)
+    v[sel] += scale[:, None] * t
+
+
+def _record(contact: F64, first: NDArray[np.int64], hit: NDArray[np.bool_], surface: int, n: F64) -> None:
+    """Note contacts: the first surface's normal in ``contact[:, 0:3]``, another's in ``[:, 3:6]``."""
+    single = hit & ((first < 0) | (first == surface))
+    contact[single, 0:3] = n[single]
+    contact[hit & ~single, 3:6] = n[hit & ~single]
+
+
+def collide_np(
+    x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
+    margin: float, friction: float, dt: float, floor: float | None, contact: F64,
+) -> None:
+    """Resolve contacts of particles with capsules (end-of-substep endpoints) and the floor, in place.
+
+    Parameters
+    ----------
+    x, v : (N, 3) float64
+        Positions and velocities at the end of the substep (modified in place).
+    free : (N,) bool
+        Particles that may be moved (pinned ones are skipped).
+    a0, b0 : (C, 3) float64
+        Capsule endpoints at the start of the substep (for the surface velocity).
+    a1, b1 : (C, 3) float64
+        Capsule endpoints at the end of the substep (the geometry collided against).
+    radii : (C, 2) float64
+    margin : float
+        Distance kept from the surfaces (cloth half thickness), metres.
+    friction : float
+        Coulomb coefficient (applied to particles touching a single surface).
+    dt : float
+        Substep length, seconds.
+    floor : float or None
+        Height of the floor plane (Y up), or None for no floor.
+    contact : (N, 6) float64
+        Output: unit normals of the first and of another surface each particle was pushed off
+        (zero where none).
+    """
+    contact[:] = 0.0
+    n = len(x)
+    first = np.full(n, -1, dtype=np.int64)
+    pinched = np.zeros(n, dtype=bool)
+    dvn = np.zeros(n)
+    nrm, vel = np.zeros((n, 3)), np.zeros((n, 3))
+    va, vb = (a1 - a0) / dt, (b1 - b0) / dt
+
+    def hit_surface(hit: NDArray[np.bool_], surface: int, push: F64, nn: F64, vs: F64) -> None:
+        dv = _push(x, v, hit, push, nn, vs)
+        _record(contact, first, hit, surface, nn)
+        own = hit & ((first < 0) | (first == surface))
+        first[own] = surface
+        dvn[own] += dv[own]
+        nrm[own], vel[own] = nn[own], vs[own]
+        pinched[hit & ~own] = True
+
+    up = np.broadcast_to(np.array([0.0, 1.0, 0.0]), x.shape)
+    todo = free.copy()
+    for _ in range(COLLISION_PASSES):
+        moved = np.zeros_like(todo)
+        for c in range(a1.shape[0]):
+            d, nc, t = round_cone_np(x, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+            hit = todo & (d[:, 0] < margin)
+            if not hit.any():
+                continue
+            vs = (1.0 - t[:, :1]) * va[c] + t[:, :1] * vb[c]
+            hit_surface(hit, c, margin - d[:, 0], nc[:, 0], vs)
+            moved |= hit
+        if floor is not None:
+            hit = todo & (x[:, 1] < floor + margin)
+            hit_surface(hit, a1.shape[0], floor + margin - x[:, 1], up, np.zeros_like(x))
+            moved |= hit
+        todo = moved
+        if not todo.any():
+            break
+    _friction(v, (first >= 0) & ~pinched, nrm, vel, dvn, friction)
+
+
+def penetration_np(x: F64, a: F64, b: F64, radii: F64, free: NDArray[np.bool_]) -> F64:
+    """Depth (>= 0, metres) by which each particle lies inside the body, 0 for pinned particles.
+
+    Parameters
+    ----------
+    x : (N, 3) float64
+    a, b : (C, 3) float64
+    radii : (C, 2) float64
+    free : (N,) bool
+
+    Returns
+    -------
+    (N,) float64
+        ``max(0, -min_c dist_c)``.
+    """
+    d, _, _ = round_cone_np(x, a, b, radii[:, 0], radii[:, 1])
+    depth: F64 = np.maximum(-d.min(axis=1), 0.0)
+    return np.where(free, depth, 0.0)

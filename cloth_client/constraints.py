@@ -1,0 +1,115 @@
+"""Strain limiting: the constraint passes that keep the cloth from over-stretching.
+
+Soft springs alone (stiff ones would need tiny explicit substeps) let a hanging cape sag by tens of
+percent, so after every integration the positions are projected back (Provot 1995), in three
+complementary passes:
+
+* **long-range attachments** (Kim, Chentanez & Mueller 2012): no particle may be farther from its
+  nearest pin than ``(1 + max_stretch)`` times its rest distance along the cloth - this stops the
+  low-frequency sag of a long column that local passes converge on slowly;
+* **line solves**: along every grid column and row, the springs outside
+  ``[(1 - max_compression) L, (1 + max_stretch) L]`` form a tridiagonal system ``J W J^T lambda =
+  -C`` solved exactly (Thomas algorithm), so a pull travels the whole line in one pass;
+* **Gauss-Seidel sweeps** over all structural springs, ordered from the pins outwards and split
+  into batches that share no particle (a vectorised batch update then equals the sequential
+  sweep), alternating direction; they also cover the wrap seam of a tube.
+
+Every pass can be *contact-aware*: ``contact (N, 6)`` holds the unit normals of up to two surfaces a
+particle rests on, and moves into them are dropped, so the final projection slides cloth along the
+body instead of pushing it in. The numba kernels (:mod:`cloth_client._kernels`) implement the same
+passes; the functions here are their numpy references.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["line_limit_np", "long_range_attach_np", "move_np", "strain_limit_np"]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+def long_range_attach_np(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:
+    """Long-range attachments, in place (reference of ``K.long_range_attach``)."""
+    d = x - x[anchor]
+    dist = np.linalg.norm(d, axis=1)
+    over = (inv_mass > 0) & (dist > reach)
+    x[over] = x[anchor[over]] + d[over] * (reach[over] / dist[over])[:, None]
+
+
+def move_np(x: F64, idx: I64, delta: F64, contact: F64) -> None:
+    """``x[idx] += delta`` less any component into the particles' (up to two) contact surfaces."""
+    n1, n2 = contact[idx, 0:3], contact[idx, 3:6]
+    d = delta.copy()
+    for _ in range(3):
+        active = np.zeros(len(idx), dtype=bool)
+        for n in (n1, n2):
+            into = np.einsum("ij,ij->i", d, n)
+            hit = into < -1e-15
+            d[hit] -= into[hit, None] * n[hit]
+            active |= hit
+        if not active.any():
+            break
+    x[idx] += d
+
+
+def strain_limit_np(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, batches: I64, iterations: int,
+                    contact: F64) -> None:
+    """Batch-vectorised symmetric Gauss-Seidel strain limiting, in place (reference of
+    ``K.strain_limit``).
+
+    ``batches`` are offsets into ``springs``; springs inside one batch share no particle, so updating
+    a whole batch at once gives exactly the sequential result. Odd iterations run backwards.
+    """
+    spans = list(itertools.pairwise(batches))
+    for it in range(iterations):
+        for b0, b1 in spans if it % 2 == 0 else spans[::-1]:
+            s = springs[b0:b1]
+            i, j = s[:, 0], s[:, 1]
+            d = x[j] - x[i]
+            length = np.linalg.norm(d, axis=1)
+            target = np.clip(length, lo[b0:b1], hi[b0:b1])
+            wi = inv_mass[i]
+            wj = inv_mass[j]
+            act = (wi + wj > 0) & (length >= 1e-12) & (target != length)
+            c = np.where(act, (length - target) / np.where(act, length * (wi + wj), 1.0), 0.0)[:, None] * d
+            move_np(x, i, wi[:, None] * c, contact)
+            move_np(x, j, -wj[:, None] * c, contact)
+
+
+def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float, max_compression: float,
+                  contact: F64) -> None:
+    """Strain limiting solved along whole grid lines, in place (reference of ``K.line_limit``): the
+    tridiagonal systems of all lines are eliminated together (a loop over the position along the
+    line, vectorised over lines)."""
+    if lines.shape[0] == 0:
+        return
+    d = x[lines[:, 1:]] - x[lines[:, :-1]]  # (L, m-1, 3)
+    length = np.linalg.norm(d, axis=-1)
+    hi, lo = rest * (1.0 + max_stretch), rest * (1.0 - max_compression)
+    w = inv_mass[lines]
+    act = ((length > hi) | (length < lo)) & (length > 1e-12) & (w[:, :-1] + w[:, 1:] > 0.0)
+    n = np.where(act[..., None], d / np.where(act, length, 1.0)[..., None], 0.0)
+    b = np.where(act, w[:, :-1] + w[:, 1:], 1.0)
+    rhs = np.where(act, -(length - np.where(length > hi, hi, lo)), 0.0)
+    both = act[:, :-1] & act[:, 1:]
+    off = np.where(both, -w[:, 1:-1] * np.einsum("lkj,lkj->lk", n[:, :-1], n[:, 1:]), 0.0)  # (L, m-2)
+    cp, dp = np.zeros_like(b), np.zeros_like(b)
+    for k in range(b.shape[1]):
+        denom = b[:, k] - (off[:, k - 1] * cp[:, k - 1] if k > 0 else 0.0)
+        dk = rhs[:, k] - (off[:, k - 1] * dp[:, k - 1] if k > 0 else 0.0)
+        cp[:, k] = (off[:, k] if k < off.shape[1] else 0.0) / denom
+        dp[:, k] = dk / denom
+    lam = np.zeros_like(b)
+    lam[:, -1] = dp[:, -1]
+    for k in range(b.shape[1] - 2, -1, -1):
+        lam[:, k] = dp[:, k] - cp[:, k] * lam[:, k + 1]
+    lam = np.where(act, lam, 0.0)
+    move = np.zeros((*lines.shape, 3))
+    move[:, 1:] += lam[..., None] * n
+    move[:, :-1] -= lam[..., None] * n
+    move_np(x, lines.ravel(), (w[..., None] * move).reshape(-1, 3), contact)

@@ -1,0 +1,293 @@
+"""Drive a garment with a stream of poses: dressing, interpolation, resets and quality metrics.
+
+:class:`ClothDriver` is shared by the offline ``simulate`` command and the live Zenoh client. Feed
+it ``(pose, time)`` pairs as they arrive:
+
+* **first two poses** - *dressing*: the garment, built around the standing pose, is carried to
+  the first pose's root frame, the limbs are blended from standing to the first pose over
+  ``dress_s`` seconds, then the avatar holds that pose for ``settle_s`` seconds while the cloth
+  comes to rest (the energy of that hold gives :attr:`RunStats.energy_drift`). Throughout, the
+  avatar glides at the root velocity of the first two poses, so a stream that starts mid-walk
+  does not hit a cloth at rest; the simulation starts at the first pose;
+* **continuous motion** - the cloth is stepped over the time between the two poses with the
+  avatar interpolated at ``key_dt`` spacing (15-120 Hz input and dropped frames alike);
+* **discontinuity** (:func:`cloth_client.avatar.is_discontinuity`) - *smooth reset*: the cloth is
+  moved rigidly with the root, the limbs swing from their old to their new angles over
+  ``reset_blend_s`` of simulated time with extra damping, then extra damping fades out over
+  ``reset_calm_s``;
+* **a body part over the seam** (a shrug under the collar, a thigh or hand on the waistband) -
+  the garment's ``seam`` policy applies: a collar slides out onto the covering surface; a
+  waistband lets the covered pins and their neighbours go for that step (they collide like free
+  cloth) unless most of it is covered, when it slides too;
+* a non-finite value (never expected) re-dresses the garment and is counted.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.skeleton import Body
+
+from . import _kernels as K
+from .avatar import Continuity, capsule_endpoints, interpolate_poses, is_discontinuity, pose_keys, rigid_root_delta
+from .cloth import ClothModel, ClothParams, ClothState, build_model, energy, initial_state, step, structural_strain
+from .garment import Garment
+
+__all__ = ["ClothDriver", "DriverConfig", "FrameStats", "RunStats"]
+
+log = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    """Timing of dressing, interpolation and resets (seconds; damping in 1/s)."""
+
+    key_dt: float = 1.0 / 240.0
+    dress_s: float = 0.6
+    settle_s: float = 0.6
+    frame_dt: float = 1.0 / 60.0
+    reset_blend_s: float = 0.1
+    reset_calm_s: float = 0.3
+    reset_damping: float = 6.0
+    continuity: Continuity = field(default_factory=Continuity)
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    """Quality of the cloth after one fed pose.
+
+    Attributes
+    ----------
+    t : float
+        Pose time, seconds.
+    substeps : int
+        Substeps taken for this pose.
+    max_penetration, mean_penetration : float
+        Deepest and mean depth of the particles inside the body, metres (0 when none is).
+    penetrating : int
+        Number of particles inside the body.
+    max_strain : float
+        Largest structural strain (0.05 = 5 % longer than at rest).
+    reset : bool
+        This pose was a discontinuity and the cloth was reset.
+    """
+
+    t: float
+    substeps: int
+    max_penetration: float
+    mean_penetration: float
+    penetrating: int
+    max_strain: float
+    reset: bool
+
+
+@dataclass
+class RunStats:
+    """Totals over a run (see :meth:`ClothDriver.summary`)."""
+
+    frames: int = 0
+    substeps: int = 0
+    sim_time: float = 0.0
+    max_penetration: float = 0.0
+    penetration_sum: float = 0.0
+    penetrating: int = 0
+    max_strain: float = 0.0
+    resets: int = 0
+    recoveries: int = 0
+    skipped: int = 0
+    energy_drift: float = 0.0
+    settle_kinetic: float = 0.0
+    nan: bool = False
+
+
+class ClothDriver:
+    """Simulate ``garment`` on ``body`` driven by poses; see the module docstring.
+
+    Parameters
+    ----------
+    body : Body
+    garment : Garment
+    params : ClothParams, optional
+    config : DriverConfig, optional
+    """
+
+    def __init__(self, body: Body, garment: Garment, params: ClothParams | None = None,
+                 config: DriverConfig | None = None) -> None:
+        self.body = body
+        self.garment = garment
+        self.model: ClothModel = build_model(garment, params)
+        self.config = config or DriverConfig()
+        self.state: ClothState | None = None
+        self.pose: F64 | None = None
+        self.stats = RunStats()
+        self._calm_until = -math.inf
+        self._depth = np.empty(garment.n_particles)
+        self._free = self.model.inv_mass > 0
+        self._first: tuple[F64, float] | None = None
+
+    # -- public ---------------------------------------------------------------------------------------
+    def feed(self, pose: F64, t: float) -> FrameStats | None:
+        """Advance the cloth to pose ``pose (P,)`` at time ``t`` (s); None if the pose was skipped
+        (not newer than the previous one)."""
+        pose = np.asarray(pose, dtype=np.float64)
+        if not np.all(np.isfinite(pose)):
+            self.stats.skipped += 1
+            return None
+        if self.state is None or self.pose is None:
+            if self._first is None or not t > self._first[1]:
+                self._first = (pose, t)  # dress once the second pose tells how fast the body moves
+                return None
+            p0, t0 = self._first
+            gap = t - t0
+            moving = not is_discontinuity(self.body, p0, pose, gap, self.config.continuity)
+            self.dress(p0, t0, (pose[:3] - p0[:3]) / gap if moving else np.zeros(3))
+            self.stats.frames += 1
+        assert self.state is not None and self.pose is not None
+        dt = t - self.state.t
+        if not dt > 1e-6:
+            self.stats.skipped += 1
+            return None
+        before = self.state.substeps
+        reset = is_discontinuity(self.body, self.pose, pose, dt, self.config.continuity)
+        if reset:
+            self._reset(pose, t)
+        else:
+            self._advance(self.pose, pose, dt)
+        if not np.all(np.isfinite(self.state.x)) or not np.all(np.isfinite(self.state.v)):
+            log.error("cloth state became non-finite at t=%.3f s; re-dressing", t)
+            self.stats.nan = True
+            self.stats.recoveries += 1
+            self.dress(pose, t)
+        self.state.t = t
+        self.pose = pose
+        self.stats.sim_time += dt
+        return self._measure(pose, t, self.state.substeps - before, reset)
+
+    def dress(self, pose: F64, t: float, root_velocity: F64 | None = None) -> None:
+        """Put the garment on the avatar at ``pose`` (see the module docstring); the clock is set to ``t``.
+
+        With ``root_velocity`` (m/s) the avatar glides at that velocity during dressing and settling
+        and arrives at ``pose`` at time ``t``, so the cloth is already moving with a body that was
+        walking when the stream began."""
+        cfg = self.config
+        vel = np.zeros(3) if root_velocity is None else np.asarray(root_velocity, dtype=np.float64)
+        t0 = t - cfg.dress_s - cfg.settle_s
+
+        def at(limbs: F64, tau: float) -> F64:  # ``limbs`` with the root where the glide puts it at tau
+            q = limbs.copy()
+            q[:3] = pose[:3] - vel * (t - tau)
+            return q
+
+        standing = self.garment.pose.copy()
+        standing[3:6] = pose[3:6]
+        start = at(standing, t0)
+        rot, shift = rigid_root_delta(self.garment.pose, start)
+        self.state = initial_state(self.model, self.garment.rest @ rot.T + shift, t0)
+        self.state.v[:] = vel
+        self.pose = start
+        n_dress = max(1, round(cfg.dress_s / cfg.frame_dt))
+        for k in range(1, n_dress + 1):
+            target = at(interpolate_poses(start, pose, np.array([k / n_dress]))[0], t0 + k * cfg.dress_s / n_dress)
+            self._advance(self.pose, target, cfg.dress_s / n_dress)
+            self.pose = target
+        e0 = top = self._energy_in_body_frame(vel)
+        n_settle = max(1, round(cfg.settle_s / cfg.frame_dt))
+        for k in range(1, n_settle + 1):
+            target = at(pose, t0 + cfg.dress_s + k * cfg.settle_s / n_settle)
+            self._advance(self.pose, target, cfg.settle_s / n_settle)
+            self.pose = target
+            top = max(top, self._energy_in_body_frame(vel))
+        scale = self.garment.total_mass * abs(self.model.params.gravity[1]) * float(np.ptp(self.garment.rest[:, 1]))
+        self.stats.energy_drift = max(self.stats.energy_drift, (top - e0) / max(scale, 1e-12))
+        self.stats.settle_kinetic = self._energy_in_body_frame(vel, "kinetic")
+        self.state.t = t
+        self.pose = pose
+
+    def _energy_in_body_frame(self, velocity: F64, part: str = "total") -> float:
+        """Energy of the cloth seen from a frame gliding with the avatar (joules)."""
+        assert self.state is not None
+        moving = ClothState(self.state.x, self.state.v - velocity, self.state.t)
+        return energy(self.model, moving)[part]
+
+    def summary(self) -> dict[str, float | int | bool]:
+        """Run totals in SI units (metres, seconds)."""
+        s = self.stats
+        return {
+            "frames": s.frames, "substeps": s.substeps, "sim_time_s": s.sim_time,
+            "max_penetration_m": s.max_penetration,
+            "mean_penetration_m": s.penetration_sum / s.penetrating if s.penetrating else 0.0,
+            "penetrating_particle_frames": s.penetrating, "max_strain": s.max_strain, "resets": s.resets,
+            "recoveries": s.recoveries, "skipped": s.skipped, "energy_drift": s.energy_drift,
+            "settle_kinetic_j": s.settle_kinetic, "nan": s.nan,
+        }
+
+    # -- internals ------------------------------------------------------------------------------------
+    def _advance(self, p0: F64, p1: F64, dt: float, extra_damping: float = 0.0) -> None:
+        assert self.state is not None
+        n_keys = max(1, math.ceil(dt / self.config.key_dt - 1e-9))
+        keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)))
+        pins = keys.pin_targets(self.garment.pin_joint, self.garment.pin_local)
+        released = self._widen(keys.covered(pins, self.model.params.margin))
+        if self.garment.seam == "slide" or released.sum() > len(released) // 2:
+            # slide the seam over the body part that covers it (always for a collar; for a
+            # waistband when most of it is covered, instead of letting the garment go)
+            pins = keys.push_out(pins, self.model.params.margin)
+            released[:] = False
+        if extra_damping == 0.0 and self.state.t < self._calm_until:
+            left = (self._calm_until - self.state.t) / self.config.reset_calm_s
+            extra_damping = self.config.reset_damping * min(1.0, left)
+        self.state = step(self.state, self.model, keys.track, pins, dt, released=released,
+                          extra_damping=extra_damping)
+        self._free = self.model.inv_mass > 0
+        self._free[self.garment.pin_index[released]] = True
+
+    def _widen(self, covered: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """``covered`` pins plus their neighbours along the seam (the seam gives way around the
+        body part that pushes into it instead of tearing at its edge)."""
+        if not covered.any():
+            return covered
+        order = self.garment.pin_index  # pins are top-row particles, in column order
+        cols = self.garment.grid_shape[1]
+        near = np.abs(order[:, None] - order[None, :])
+        if self.garment.wrap:
+            near = np.minimum(near, cols - near)
+        out: NDArray[np.bool_] = ((near <= 1) & covered[None, :]).any(axis=1)
+        return out
+
+    def _reset(self, pose: F64, t: float) -> None:
+        assert self.state is not None and self.pose is not None
+        cfg = self.config
+        self.stats.resets += 1
+        mid = self.pose.copy()
+        mid[:6] = pose[:6]
+        rot, shift = rigid_root_delta(self.pose, mid)
+        log.info("pose discontinuity at t=%.3f s: root moved %.2f m; resetting the cloth smoothly",
+                 t, float(np.linalg.norm(shift + (rot - np.eye(3)) @ self.pose[:3])))
+        self.state = ClothState(self.state.x @ rot.T + shift, 0.5 * self.state.v @ rot.T,
+                                t - cfg.reset_blend_s, self.state.substeps)
+        self._advance(mid, pose, cfg.reset_blend_s, extra_damping=cfg.reset_damping)
+        self._calm_until = t + cfg.reset_calm_s
+
+    def _measure(self, pose: F64, t: float, substeps: int, reset: bool) -> FrameStats:
+        assert self.state is not None
+        a, b = capsule_endpoints(self.body, pose)
+        K.penetration(self.state.x, a, b, self.body.capsule_radii, self._free.astype(np.float64), self._depth)
+        inside = self._depth > 0.0
+        n_in = int(inside.sum())
+        deepest = float(self._depth.max()) if n_in else 0.0
+        strain = float(structural_strain(self.model, self.state.x).max())
+        s = self.stats
+        s.substeps += substeps
+        s.frames += 1
+        s.max_penetration = max(s.max_penetration, deepest)
+        s.penetration_sum += float(self._depth[inside].sum())
+        s.penetrating += n_in
+        s.max_strain = max(s.max_strain, strain)
+        return FrameStats(t, substeps, deepest, float(self._depth[inside].mean()) if n_in else 0.0, n_in,
+                          strain, reset)

@@ -1,0 +1,201 @@
+"""Collision with body capsules: geometry of the tapered capsule, response against one capsule
+(projection, inelastic normal, Coulomb friction), continuity under a fast swing, pinning."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cloth_client import _kernels as K
+from cloth_client.avatar import pose_keys
+from cloth_client.cloth import ClothParams, build_model, initial_state, step
+from cloth_client.collision import CapsuleTrack, collide_np, max_relative_travel, penetration_np, round_cone_np
+from cloth_client.garment import make_cape, make_sheet, make_skirt
+from protocol.kinematics import fk
+from protocol.rotations import rotvec_to_matrix
+from protocol.skeleton import JOINT_INDEX, ROT_JOINTS, default_body, standing_pose
+
+A = np.array([[0.0, 0.0, 0.0]])
+B = np.array([[0.5, 0.0, 0.0]])
+
+
+def _collide(backend: str, x: np.ndarray, v: np.ndarray, a0: np.ndarray, b0: np.ndarray, a1: np.ndarray,
+             b1: np.ndarray, radii: np.ndarray, margin: float, friction: float, dt: float,
+             floor: float | None = None) -> np.ndarray:
+    contact = np.zeros((len(x), 6))
+    if backend == "numba":
+        K.collide(x, v, np.ones(len(x)), a0, b0, a1, b1, radii, margin, friction, dt,
+                  0.0 if floor is None else floor, floor is not None, contact)
+    else:
+        collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact)
+    return contact
+
+
+def test_round_cone_distance_matches_support_points() -> None:
+    """For any direction w, the hull of the two spheres has its support point c + r w (c, r the
+    sphere maximising c.w + r) on the surface with outward normal w; points h along w are at
+    signed distance h."""
+    rng = np.random.default_rng(3)
+    a, b = np.array([[0.1, 0.2, -0.1]]), np.array([[0.3, 0.6, 0.2]])
+    ra, rb = np.array([0.09]), np.array([0.04])
+    w = rng.normal(size=(500, 3))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    use_a = (w @ a[0] + ra[0]) >= (w @ b[0] + rb[0])
+    support = np.where(use_a[:, None], a[0] + ra[0] * w, b[0] + rb[0] * w)
+    for h in (0.03, 0.0, -0.01):
+        d, n, _ = round_cone_np(support + h * w, a, b, ra, rb)
+        np.testing.assert_allclose(d[:, 0], h, atol=1e-9)
+        np.testing.assert_allclose(n[:, 0], w, atol=1e-7)
+        for k in range(0, 500, 50):  # the numba scalar version agrees
+            dk, nx, ny, nz, _ = K.round_cone(*(support[k] + h * w[k]), a[0], b[0], ra[0], rb[0])
+            assert dk == pytest.approx(d[k, 0], abs=1e-12)
+            np.testing.assert_allclose([nx, ny, nz], n[k, 0], atol=1e-9)
+
+
+def test_round_cone_degenerate_cases() -> None:
+    # one sphere swallows the other: just the big sphere
+    d, n, t = round_cone_np(np.array([[0.0, 0.5, 0.0]]), A, np.array([[0.05, 0.0, 0.0]]), np.array([0.2]),
+                            np.array([0.05]))
+    assert d[0, 0] == pytest.approx(0.3) and t[0, 0] == 0.0
+    np.testing.assert_allclose(n[0, 0], [0, 1, 0], atol=1e-12)
+    # a point on the axis inside gets a unit normal
+    d, n, _ = round_cone_np(np.array([[0.25, 0.0, 0.0]]), A, B, np.array([0.1]), np.array([0.1]))
+    assert d[0, 0] == pytest.approx(-0.1) and np.linalg.norm(n[0, 0]) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_particle_inside_capsule_is_projected_out_with_friction(backend: str) -> None:
+    r, margin, mu, dt = np.array([[0.1, 0.1]]), 0.005, 0.4, 0.01
+    x = np.array([[0.25, 0.05, 0.0], [0.25, 0.3, 0.0]])  # inside, and far outside
+    v = np.array([[1.0, -2.0, 0.0], [0.0, -1.0, 0.0]])  # sliding along the axis, moving into it
+    contact = _collide(backend, x, v, A, B, A, B, r, margin, mu, dt)
+    np.testing.assert_allclose(x[0], [0.25, 0.1 + margin, 0.0], atol=1e-12)
+    # normal velocity (-2 into the surface) cancelled; tangential 1 m/s reduced by mu * 2 = 0.8
+    np.testing.assert_allclose(v[0], [0.2, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(contact[0], [0, 1, 0, 0, 0, 0], atol=1e-12)
+    np.testing.assert_array_equal(x[1], [0.25, 0.3, 0.0])  # untouched
+    np.testing.assert_array_equal(v[1], [0.0, -1.0, 0.0])
+    assert not contact[1].any()
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_moving_capsule_carries_particle_and_static_friction_sticks(backend: str) -> None:
+    r, dt = np.array([[0.1, 0.1]]), 0.01
+    a0, b0 = A - [0.0, 0.02, 0.0], B - [0.0, 0.02, 0.0]  # the capsule rose 2 cm during the substep
+    x = np.array([[0.25, 0.09, 0.0]])
+    v = np.array([[0.05, 0.0, 0.0]])
+    _collide(backend, x, v, a0, b0, A, B, r, 0.0, 1.0, dt)
+    np.testing.assert_allclose(x[0, 1], 0.1, atol=1e-12)
+    # surface moves up at 2 m/s: the particle leaves with it; the small slip is stopped by friction
+    np.testing.assert_allclose(v[0], [0.0, 2.0, 0.0], atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_floor_and_pinch_between_two_surfaces(backend: str) -> None:
+    # a capsule lying 2 cm deep in the floor; one particle in the crease between them, one on the floor
+    a, b, r = np.array([[0.0, 0.03, 0.0]]), np.array([[0.5, 0.03, 0.0]]), np.array([[0.05, 0.05]])
+    x = np.array([[0.25, -0.003, 0.035], [1.0, -0.02, 0.0]])
+    v = np.array([[0.3, -1.0, 0.0], [0.3, -1.0, 0.0]])
+    contact = _collide(backend, x, v, a, b, a, b, r, 0.0, 0.5, 0.01, floor=0.0)
+    assert x[1, 1] == pytest.approx(0.0) and v[1, 1] == 0.0 and v[1, 0] < 0.3  # floor with friction
+    np.testing.assert_allclose(contact[1], [0, 1, 0, 0, 0, 0], atol=1e-12)
+    d, _, _ = round_cone_np(x[:1], a, b, r[:, 0], r[:, 1])
+    assert d[0, 0] >= -1e-3 and x[0, 1] >= -1e-9  # worked out of both (to within a millimetre)
+    assert np.linalg.norm(contact[0, :3]) > 0.5 and np.linalg.norm(contact[0, 3:]) > 0.5  # two surfaces
+    assert v[0, 0] == pytest.approx(0.3)  # pinched: no friction drag
+
+
+def test_penetration_depth_kernel_matches_numpy(rng: np.random.Generator) -> None:
+    body = default_body()
+    keys = pose_keys(body, standing_pose(body)[None].repeat(2, 0))
+    a, b = keys.track.a[0], keys.track.b[0]
+    x = rng.uniform([-0.4, 0.0, -0.3], [0.4, 1.8, 0.3], size=(2000, 3))
+    free = rng.random(2000) > 0.1
+    out = np.empty(2000)
+    K.penetration(x, a, b, body.capsule_radii, free.astype(float), out)
+    ref = penetration_np(x, a, b, body.capsule_radii, free)
+    np.testing.assert_allclose(out, ref, atol=1e-12)
+    assert (ref > 0).sum() > 50 and np.all(ref[~free] == 0)
+
+
+def test_fast_swing_does_not_tunnel_through_cloth() -> None:
+    """A forearm-sized capsule (r = 4 cm) crosses a hanging sheet at 12 m/s within one 30 Hz frame.
+    With the substeps planned from its travel it pushes the cloth ahead; forcing one substep lets it
+    pass straight through."""
+    g = make_sheet(12, 12, 0.03, height=1.5)
+    model = build_model(g, ClothParams(floor=None))
+    # hang the sheet vertically in the plane z = 0: rows go down
+    x0 = g.rest.copy()
+    x0[:, 1] = 1.5 + x0[:, 2]
+    x0[:, 2] = 0.0
+    state = initial_state(model, x0)
+    r = np.array([[0.04, 0.04]])
+    a = np.array([[[0.17, 1.05, -0.2]], [[0.17, 1.05, 0.2]]])
+    b = a + np.array([0.0, 0.25, 0.0])  # a vertical bar 25 cm tall, moving from z = -0.2 to z = +0.2
+    track = CapsuleTrack(a, b, r)
+    assert max_relative_travel(track) == pytest.approx(10.0)
+    pins = np.repeat(x0[g.pin_index][None], 2, axis=0)
+    good = step(state, model, track, pins, 1 / 30)
+    bad = step(state, model, track, pins, 1 / 30, n_substeps=1)
+    assert good.substeps >= 20
+    near = (np.abs(x0[:, 0] - 0.17) < 0.025) & (x0[:, 1] > 1.06) & (x0[:, 1] < 1.29)
+    assert near.sum() >= 4
+    assert np.all(good.x[near, 2] > 0.2 - 0.04)  # carried along: ahead of or beside the bar, not behind
+    d, _, _ = round_cone_np(good.x, a[-1], b[-1], r[:, 0], r[:, 1])
+    assert d.min() > 0.0
+    assert np.all(bad.x[near, 2] < 0.1)  # left behind: the bar jumped over them
+
+
+def test_pins_follow_their_joint() -> None:
+    body = default_body()
+    g = make_skirt(body, 400)
+    model = build_model(g)
+    p0 = standing_pose(body)
+    p1 = p0.copy()
+    p1[3:6] = [0.0, np.pi / 2, 0.0]  # turn the whole body 90 degrees about +Y
+    p1[0] += 0.3
+    keys = pose_keys(body, np.stack([p0, p1]))
+    targets = keys.pin_targets(g.pin_joint, g.pin_local)
+    np.testing.assert_allclose(targets[0], g.rest[g.pin_index], atol=1e-12)
+    rel0 = g.rest[g.pin_index] - p0[:3]
+    np.testing.assert_allclose(targets[1] - p1[:3], rel0 @ rotvec_to_matrix(p1[3:6]).T, atol=1e-9)
+    assert np.allclose((targets[1] - p1[:3])[:, 0], rel0[:, 2], atol=1e-9)  # +Z turned onto +X
+    out = step(initial_state(model), model, keys.track, targets, 1 / 30)
+    np.testing.assert_allclose(out.x[g.pin_index], targets[-1], atol=1e-12)
+
+
+def test_covered_pins_are_released_and_collide() -> None:
+    body = default_body()
+    g = make_cape(body, 400)
+    pose = standing_pose(body)
+    keys = pose_keys(body, np.stack([pose, pose]))
+    targets = keys.pin_targets(g.pin_joint, g.pin_local)
+    assert not keys.covered(targets, 0.006).any()  # the collar clears the body at rest
+    # bury two collar pins at the chest joint, inside the thorax: they are reported as covered
+    buried = targets.copy()
+    buried[:, :2] = fk(pose, body)[JOINT_INDEX["chest"]]
+    covered = keys.covered(buried, 0.006)
+    assert covered[:2].all() and not covered[2:].any()
+    model = build_model(g)
+    out = step(initial_state(model), model, keys.track, buried, 1 / 30, released=covered)
+    d, _, _ = round_cone_np(out.x[g.pin_index[:2]], keys.track.a[-1], keys.track.b[-1], body.capsule_radii[:, 0],
+                            body.capsule_radii[:, 1])
+    assert d.min() > 0.0  # released pins are free particles: pushed out, not held inside
+    np.testing.assert_allclose(out.x[g.pin_index[2:]], buried[-1, 2:], atol=1e-12)
+    pushed = keys.push_out(buried, 0.006)
+    d, _, _ = round_cone_np(pushed[0], keys.track.a[0], keys.track.b[0], body.capsule_radii[:, 0],
+                            body.capsule_radii[:, 1])
+    assert d.min() >= 0.006 - 1e-9
+
+
+def test_collar_moves_with_the_chest() -> None:
+    body = default_body()
+    g = make_cape(body, 300)
+    assert set(g.pin_joint.tolist()) == {JOINT_INDEX["chest"]}
+    pose = standing_pose(body)
+    bent = pose.copy()
+    k = 3 + 3 * ROT_JOINTS.index("spine")
+    bent[k] = 0.5  # lean forward
+    keys = pose_keys(body, np.stack([pose, bent]))
+    t = keys.pin_targets(g.pin_joint, g.pin_local)
+    assert np.all(t[1, :, 2] > t[0, :, 2] + 0.05)  # the collar went forward with the torso

@@ -1,0 +1,198 @@
+"""Driving a garment with a pose stream: dressing, 15-120 Hz input, dropped frames, pose jumps and
+the smooth teleport reset; and the garments themselves (sizing, topology, masses)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from cloth_client.avatar import Continuity, capsule_endpoints, interpolate_poses, is_discontinuity, rigid_root_delta
+from cloth_client.cloth import build_model, structural_strain
+from cloth_client.collision import penetration_np
+from cloth_client.driver import ClothDriver, DriverConfig
+from cloth_client.garment import DEFAULT_DENSITY, grid_topology, make_cape, make_garment, make_skirt
+from protocol.kinematics import fk
+from protocol.messages import body_from_body_info, body_info_from_body
+from protocol.rotations import rotvec_to_matrix
+from protocol.skeleton import JOINT_INDEX, ROT_JOINTS, body_from_measurements, default_body, standing_pose
+
+BODY = default_body()
+FAST = DriverConfig(dress_s=0.2, settle_s=0.2)
+
+
+def _dance(t: np.ndarray, body=BODY) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """A synthetic motion: standing pose + sinusoids on the arms, hips and trunk, walking forward."""
+    p = np.repeat(standing_pose(body)[None], len(t), axis=0)
+    rot = p[:, 3:].reshape(len(t), -1, 3)
+    w = 2 * np.pi * t
+    rot[:, ROT_JOINTS.index("l_shoulder"), 2] += 0.9 * np.sin(w)
+    rot[:, ROT_JOINTS.index("r_shoulder"), 0] += 0.8 * np.sin(1.3 * w)
+    rot[:, ROT_JOINTS.index("l_hip"), 0] += 0.5 * np.sin(w)
+    rot[:, ROT_JOINTS.index("r_hip"), 0] -= 0.5 * np.sin(w)
+    rot[:, ROT_JOINTS.index("spine"), 1] += 0.4 * np.sin(0.5 * w)
+    p[:, 2] += 0.8 * t  # walk forward at 0.8 m/s
+    p[:, 4] += 0.6 * np.sin(0.5 * w)  # and turn
+    return p
+
+
+def _check(driver: ClothDriver, pose: np.ndarray, max_strain: float = 0.10) -> None:
+    assert driver.state is not None
+    assert np.all(np.isfinite(driver.state.x)) and np.all(np.isfinite(driver.state.v))
+    a, b = capsule_endpoints(driver.body, pose)
+    depth = penetration_np(driver.state.x, a, b, driver.body.capsule_radii, driver.model.inv_mass > 0)
+    assert depth.max() < 0.01
+    assert structural_strain(driver.model, driver.state.x).max() < max_strain
+
+
+@pytest.mark.parametrize("kind", ["cape", "skirt"])
+@pytest.mark.parametrize("rate", [15.0, 120.0])
+def test_synthetic_motion_at_low_and_high_rates(kind: str, rate: float) -> None:
+    t = np.arange(0.0, 1.5, 1.0 / rate)
+    poses = _dance(t)
+    d = ClothDriver(BODY, make_garment(kind, BODY, 500), config=FAST)
+    for p, ti in zip(poses, t, strict=True):
+        d.feed(p, float(ti))
+    _check(d, poses[-1])
+    s = d.summary()
+    assert s["frames"] == len(t) and s["resets"] == 0 and not s["nan"]
+    assert s["energy_drift"] < 0.01
+    assert s["sim_time_s"] == pytest.approx(t[-1] - t[0])
+
+
+def test_dropped_frames_are_bridged_by_interpolation() -> None:
+    t = np.arange(0.0, 1.5, 1 / 30)
+    keep = np.ones(len(t), bool)
+    keep[10:16] = False  # 0.2 s gap
+    keep[30:33] = False
+    poses = _dance(t)
+    d = ClothDriver(BODY, make_cape(BODY, 500), config=FAST)
+    for p, ti in zip(poses[keep], t[keep], strict=True):
+        d.feed(p, float(ti))
+    assert d.stats.resets == 0
+    _check(d, poses[-1])
+
+
+def test_stale_or_nonfinite_poses_are_skipped() -> None:
+    d = ClothDriver(BODY, make_cape(BODY, 300), config=FAST)
+    p = standing_pose(BODY)
+    assert d.feed(p, 1.0) is None and d.state is None  # the first pose waits for the second
+    assert d.feed(p, 1.05) is not None and d.state is not None  # dressed, then stepped
+    assert d.feed(p, 1.05) is None  # not newer
+    assert d.feed(p, 0.5) is None  # out of order
+    bad = p.copy()
+    bad[7] = np.nan
+    assert d.feed(bad, 2.0) is None
+    assert d.stats.skipped == 3
+    assert d.feed(p, 1.1) is not None
+    assert d.stats.frames == 3
+
+
+def test_teleport_resets_the_cloth_smoothly() -> None:
+    """The tracker re-initialises: the body jumps 4 m and turns 180 degrees in one frame. The cloth
+    is carried along rigidly, keeps its drape relative to the body, and does not explode."""
+    dt = 1 / 30
+    d = ClothDriver(BODY, make_cape(BODY, 600), config=FAST)
+    p = standing_pose(BODY)
+    for k in range(20):
+        d.feed(p, k * dt)
+    assert d.state is not None
+    before = d.state.x.copy()
+    q = p.copy()
+    q[0] += 3.0
+    q[2] -= 2.6
+    q[3:6] = [0.0, np.pi, 0.0]
+    stats = d.feed(q, 20 * dt)
+    assert stats is not None and stats.reset
+    rot, shift = rigid_root_delta(p, q)
+    np.testing.assert_allclose(rot, rotvec_to_matrix([0.0, np.pi, 0.0]), atol=1e-9)
+    carried = before @ rot.T + shift
+    assert np.abs(d.state.x - carried).max() < 0.05  # still draped the same way on the body
+    speed = np.linalg.norm(d.state.v, axis=1)
+    assert speed.max() < 2.0  # no explosion
+    for k in range(21, 40):
+        d.feed(q, k * dt)
+    _check(d, q)
+    assert np.linalg.norm(d.state.v, axis=1).max() < 0.5
+    assert d.stats.resets == 1
+
+
+def test_pose_jump_of_the_limbs_only_is_handled_as_a_reset() -> None:
+    dt = 1 / 30
+    d = ClothDriver(BODY, make_skirt(BODY, 500), config=FAST)
+    p = standing_pose(BODY)
+    for k in range(10):
+        d.feed(p, k * dt)
+    q = p.copy()
+    q[3 + 3 * ROT_JOINTS.index("l_hip")] = -1.4  # the leg snaps up to a high kick
+    assert is_discontinuity(BODY, p, q, dt)
+    for k in range(10, 30):
+        d.feed(q, k * dt)
+    assert d.stats.resets == 1
+    _check(d, q, max_strain=0.15)
+
+
+def test_discontinuity_thresholds() -> None:
+    p = standing_pose(BODY)
+    q = p.copy()
+    q[2] += 0.2  # 20 cm in a 30 Hz frame = 6 m/s: a run
+    assert not is_discontinuity(BODY, p, q, 1 / 30)
+    assert is_discontinuity(BODY, p, q, 1 / 120)  # 24 m/s
+    assert is_discontinuity(BODY, p, p, 1.0)  # longer than the bridgeable gap
+    assert is_discontinuity(BODY, p, p, 0.0)
+    assert not is_discontinuity(BODY, p, q, 1 / 30, Continuity(max_root_speed=20.0))
+
+
+def test_interpolated_poses_keep_bone_lengths_and_hit_the_ends() -> None:
+    p0, p1 = _dance(np.array([0.1, 0.4]))
+    s = np.linspace(0.0, 1.0, 7)
+    mid = interpolate_poses(p0, p1, s)
+    np.testing.assert_allclose(mid[0], p0, atol=1e-9)
+    np.testing.assert_allclose(fk(mid[-1], BODY), fk(p1, BODY), atol=1e-9)
+    j = fk(mid, BODY)
+    hand = np.linalg.norm(j[:, JOINT_INDEX["l_wrist"]] - j[:, JOINT_INDEX["l_elbow"]], axis=1)
+    np.testing.assert_allclose(hand, hand[0], rtol=1e-9)
+
+
+# --- garments -------------------------------------------------------------------------------------
+
+def test_grid_topology_counts() -> None:
+    s, sh, b, t = grid_topology(4, 5, wrap=False)
+    assert len(s) == 4 * 4 + 3 * 5 and len(sh) == 2 * 3 * 4 and len(b) == 4 * 3 + 2 * 5 and len(t) == 2 * 3 * 4
+    s, sh, b, t = grid_topology(4, 5, wrap=True)
+    assert len(s) == 4 * 5 + 3 * 5 and len(sh) == 2 * 3 * 5 and len(t) == 2 * 3 * 5
+    with pytest.raises(ValueError):
+        grid_topology(2, 5, wrap=False)
+
+
+@pytest.mark.parametrize("kind", ["cape", "skirt"])
+def test_garment_is_sized_to_the_body_and_clears_it(kind: str) -> None:
+    small = body_from_measurements(1.45, name="small")
+    tall = body_from_body_info(body_info_from_body(body_from_measurements(1.95, hip_m=1.15, name="tall"), "t"))
+    sizes = []
+    for body in (small, tall):
+        g = make_garment(kind, body, 1500)
+        assert abs(g.n_particles - 1500) < 200
+        a, b = capsule_endpoints(body, g.pose)
+        depth = penetration_np(g.rest, a, b, body.capsule_radii, np.ones(g.n_particles, bool))
+        assert depth.max() == 0.0
+        area = 0.5 * np.linalg.norm(np.cross(g.rest[g.triangles[:, 1]] - g.rest[g.triangles[:, 0]],
+                                             g.rest[g.triangles[:, 2]] - g.rest[g.triangles[:, 0]]), axis=1).sum()
+        assert g.total_mass == pytest.approx(DEFAULT_DENSITY * area, rel=1e-9)
+        sizes.append((np.ptp(g.rest[:, 0]), np.ptp(g.rest[:, 1])))
+        # pins sit on the top row, rebuilt exactly by the avatar in the build pose
+        assert np.all(g.pin_index < g.grid_shape[1])
+    assert sizes[1][0] > 1.15 * sizes[0][0] and sizes[1][1] > 1.2 * sizes[0][1]
+
+
+def test_strain_limit_batches_are_particle_disjoint_and_cover_all_springs() -> None:
+    for g in (make_cape(BODY, 400), make_skirt(BODY, 400)):
+        ptr = g.limit_batches
+        assert ptr[0] == 0 and ptr[-1] == len(g.structural)
+        for b0, b1 in itertools.pairwise(ptr):
+            ids = g.limit_springs[b0:b1].ravel()
+            assert len(np.unique(ids)) == len(ids)
+        assert {tuple(sorted(s)) for s in g.limit_springs.tolist()} == {tuple(sorted(s)) for s in g.structural.tolist()}
+        model = build_model(g)
+        assert np.all(model.reach[g.pin_index] == 0.0) and np.all(model.reach >= 0)

@@ -127,7 +127,8 @@ def main() -> int:
                          "reacquire_s_max": None if any(x is None for x in re) else max(re),
                          "ms_total_avg": round(float(np.mean([r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
                          "ms_total_max": round(float(np.max([r["ms_per_frame"]["total"]["max"] for r in rs])), 2),
-                         "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs], axis=0).round(0).tolist()}
+                         "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs],
+                                                    axis=0).round(0).tolist()}
     res["summary"] = summary
     res["per_take"] = {k: [{kk: r[kk] for kk in ("take", "mpjpe_cm", "root_error_cm", "frames_within_10cm",
                                                  "reacquire_s_max", "body_selected", "subject_height_m")} for r in v]

@@ -146,7 +146,9 @@ class ClothDriver:
             p0, t0 = self._first
             gap = t - t0
             moving = not is_discontinuity(self.body, p0, pose, gap, self.config.continuity)
-            self.dress(p0, t0, (pose[:3] - p0[:3]) / gap if moving else np.zeros(3))
+            glide = (pose[:3] - p0[:3]) / gap if moving else np.zeros(3)
+            glide[1] = 0.0  # horizontal only: the vertical bob of a gait averages out
+            self.dress(p0, t0, glide)
             self.stats.frames += 1
         assert self.state is not None and self.pose is not None
         dt = t - self.state.t

@@ -35,13 +35,17 @@ strike
     The right wrist rises above the head line (``up >= 0.10``) while the left wrist stays below
     ``up = -0.10`` (or holds the same grip: wrists within 0.15 H, as in a two-handed chop) and is
     seen in >= 30 % of the frames, then falls from ``up = 0.05`` to ``up = -0.15`` in <= 0.14 s
-    (>= 1.4 H/s). Ends when it passes ``-0.15``.
+    (>= 1.4 H/s) in front of the body (mean ``fwd >= 0`` through that band: a chop towards the
+    opponent, not an arm circle coming down at the side or behind). Ends when it passes ``-0.15``.
 fire_ring
     Both wrists rise to ``up >= -0.08`` (about shoulder height or above), apart (>= 0.12 H) and at
     some point not stretched out sideways (``out <= 0.36``: not a T-pose), for 0.45-3.3 s, then
-    both fall to ``up <= -0.22`` within 0.5 s of leaving that zone. A raise that starts within
-    0.6 s of the previous drop is rhythmic (a waving of both arms) and ignored. Ends when the
-    second wrist passes ``-0.22``.
+    both fall to ``up <= -0.22`` within 0.5 s of leaving that zone. The raise must be seen: after
+    a reset (stream start, gap, glitch, long occlusion) the arms must first be seen below the
+    raised zone (``up < -0.10``), so arms that are already up when the recogniser joins and are
+    then dropped do not count. A raise that starts within 0.6 s of the previous drop (any drop
+    from the raised zone, seen raise or not) is rhythmic (a waving of both arms) and ignored.
+    Ends when the second wrist passes ``-0.22``.
 """
 
 from __future__ import annotations
@@ -131,19 +135,31 @@ class FireRingParams:
     max_swings: int = 4
     min_swing: float = 0.06
     rhythm_gap_s: float = 0.6
+    raise_seen: bool = True  # the arms must be seen below the raised zone before the raise counts
     occlusion_hold_s: float = 0.5
 
 
 class FireRingDetector:
-    """Both arms raised (apart, not waving), then both brought down quickly."""
+    """Both arms raised (apart, not waving), then both brought down quickly.
+
+    The raise is part of the gesture: after a reset (start of the stream, a gap, a glitch, a long
+    occlusion) the arms must be seen below the raised zone before a raise can start one, so arms
+    that are already up when the recogniser joins (the middle of a wave or of some other movement)
+    and are then dropped are not a fire ring.
+    """
 
     def __init__(self, p: FireRingParams) -> None:
         self.p = p
         self.swings = _Swings(p.min_swing)
-        self.t_cycle_end = -math.inf
+        self.t_cycle_end = -math.inf  # when both arms last came down from the raised zone (seen or not)
+        self.arms_up = False
+        self.seen_low = False
         self.reset()
 
-    def reset(self) -> None:
+    def reset(self, keep_seen: bool = False) -> None:
+        """Start over; ``keep_seen`` keeps knowing that the arms were seen down (a restart after
+        another arm gesture, whose end the recogniser saw, rather than after a hole in the stream)."""
+        seen = keep_seen and self.seen_low
         self.state = "idle"
         self.t_raised = self.t_exit = self.t_seen = self.t_prev = -math.inf
         self.prev_lo = self.prev_hi = math.nan
@@ -151,6 +167,7 @@ class FireRingDetector:
         self.min_sep = math.inf
         self.rhythmic = False
         self.upright = False
+        self.seen_low = seen or not self.p.raise_seen
         self.swings.reset()
 
     def update(self, f: FrameFeatures) -> Candidate | None:
@@ -164,8 +181,18 @@ class FireRingDetector:
         assert wl is not None and wr is not None
         lo, hi = min(wl[1], wr[1]), max(wl[1], wr[1])
         out: Candidate | None = None
+        if lo < p.raise_up - p.hysteresis:
+            self.seen_low = True
+        if lo >= p.raise_up:
+            self.arms_up = True
+        elif hi <= p.low_up and self.arms_up:  # any drop from the raised zone counts for the rhythm rule
+            self.arms_up = False
+            self.t_cycle_end = _cross_time(self.t_prev, self.prev_hi, f.t, hi, p.low_up)
+        if self.state == "idle" and lo >= p.raise_up and not self.seen_low and self.t_prev == -math.inf:
+            log.debug("fire ring at %.2f s: arms already up when the detector (re)started; waiting for them "
+                      "to come down", f.t)
         if self.state == "idle":
-            if lo >= p.raise_up:
+            if lo >= p.raise_up and self.seen_low:
                 self.state = "raised"
                 self.t_raised = _cross_time(self.t_prev, self.prev_lo, f.t, lo, p.raise_up)
                 self.rhythmic = 0.0 <= self.t_raised - self.t_cycle_end < p.rhythm_gap_s
@@ -198,7 +225,6 @@ class FireRingDetector:
                     speed = (self.peak - p.low_up) / max(t_low - self.t_exit, 0.05)
                     score = 0.5 * clip01((self.peak - p.raise_up) / 0.2) + 0.5 * clip01(speed / 1.0)
                     out = Candidate(self.t_raised, t_low, score)
-                self.t_cycle_end = t_low
                 self.state = "idle"
             elif lo >= p.raise_up:  # rejected but raised again: a new attempt
                 self.state = "idle"
@@ -223,11 +249,18 @@ class StrikeParams:
     min_left_seen: float = 0.3  # fraction of the gesture's frames in which the left arm was visible
     max_swings: int = 4
     min_swing: float = 0.06
+    min_drop_fwd: float = 0.0  # mean forward position of the wrist through the band: a chop in front, not a circle
     occlusion_hold_s: float = 0.5
 
 
 class StrikeDetector:
-    """Right arm swung up above the head and brought down fast (left arm low or on the same grip)."""
+    """Right arm swung up above the head and brought down fast in front of the body (left arm low or
+    on the same grip).
+
+    "In front": the wrist's mean forward offset from the shoulders while it crosses the band is at
+    least ``min_drop_fwd``. A strike chops down towards the opponent in front; an arm circle
+    (windmill) that comes down at the side or behind the shoulders is not one.
+    """
 
     def __init__(self, p: StrikeParams) -> None:
         self.p = p
@@ -237,7 +270,8 @@ class StrikeDetector:
     def reset(self) -> None:
         self.state = "idle"
         self.t_raised = self.t_top = self.t_seen = self.t_prev = self.t_last_raised = -math.inf
-        self.prev_up = math.nan
+        self.prev_up = self.prev_fwd = math.nan
+        self.fwd_sum, self.fwd_n = 0.0, 0
         self.peak = -math.inf
         self.left_ok = True
         self.left_seen = self.frames = 0
@@ -279,7 +313,9 @@ class StrikeDetector:
             if up < p.band_top:
                 self.state = "falling"
                 self.t_top = _cross_time(self.t_prev, self.prev_up, f.t, up, p.band_top)
+                self.fwd_sum, self.fwd_n = (0.0, 0) if math.isnan(self.prev_fwd) else (self.prev_fwd, 1)
         if self.state == "falling":
+            self.fwd_sum, self.fwd_n = self.fwd_sum + float(wr[2]), self.fwd_n + 1
             if up >= p.raise_up:
                 self.state = "raised"
             elif up <= p.band_bottom:
@@ -287,15 +323,19 @@ class StrikeDetector:
                 band = t_low - self.t_top
                 dur = self.t_last_raised - self.t_raised
                 seen = self.left_seen / max(self.frames, 1)  # the left arm must be seen to rule out two arms
+                fwd = self.fwd_sum / self.fwd_n
+                if fwd < p.min_drop_fwd:
+                    log.debug("strike at %.2f s not in front: wrist %.2f H forward through the band", f.t, fwd)
                 if (band <= p.max_band_s and self.left_ok and self.swings.count <= p.max_swings
-                        and p.min_raised_s <= dur + 1e-9 and dur <= p.max_raised_s and seen >= p.min_left_seen):
+                        and p.min_raised_s <= dur + 1e-9 and dur <= p.max_raised_s and seen >= p.min_left_seen
+                        and fwd >= p.min_drop_fwd):
                     speed = (p.band_top - p.band_bottom) / max(band, 1e-3)
                     score = 0.5 * clip01((self.peak - p.raise_up) / 0.15) + 0.5 * clip01(speed / 3.0)
                     out = Candidate(self.t_raised, t_low, score * (0.6 + 0.4 * seen))
                 self.state = "idle"
             elif f.t - self.t_top > 1.0:
                 self.state = "idle"
-        self.t_prev, self.prev_up = f.t, up
+        self.t_prev, self.prev_up, self.prev_fwd = f.t, up, float(wr[2])
         return out
 
 

@@ -24,20 +24,8 @@ from protocol.skeleton import N_PARTS, PARTS
 from .gestures import GestureEvent, RecognizerConfig, recognize
 from .variants import Label, Variant, load_labels, variant_labels, variant_motion
 
-__all__ = ["KNOWN_GESTURE_LIKE", "Case", "Match", "Score", "allowed_gestures", "degrade", "expected_gestures",
+__all__ = ["Case", "Match", "Score", "allowed_gestures", "degrade", "expected_gestures",
            "match_events", "occlude", "random_cases", "recording", "run_case"]
-
-#: Non-gesture recordings that contain a movement physically identical to one of the game's
-#: gestures, with where and why (the recogniser reports them; they count as false gestures in the
-#: benchmark). Keys are paths relative to the recordings folder.
-KNOWN_GESTURE_LIKE: dict[str, tuple[str, float, str]] = {
-    "bandai/dataset-1_byebye_giant_001.bvh": (
-        "fire_ring", 0.63, "the take starts with both arms overhead and swings them down to the hips in 0.2 s: "
-        "the first of five identical up-down cycles (the later ones are suppressed as rhythmic)"),
-    "bandai/dataset-1_dance-short_normal_001.bvh": (
-        "strike", 35.07, "a dance move: right arm straight up, then swung down fast, left arm low, body in place"),
-}
-
 
 @dataclass(frozen=True)
 class Match:

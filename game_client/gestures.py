@@ -301,7 +301,10 @@ class GestureRecognizer:
                                        cand.direction))
         if any(e.gesture in ARM_GESTURES for e in events):
             for g in ARM_GESTURES:
-                self._detectors[g].reset()
+                if g == Gesture.FIRE_RING:
+                    self._detectors[g].reset(keep_seen=True)  # the arms were seen: no need to see them down again
+                else:
+                    self._detectors[g].reset()
         return events
 
 

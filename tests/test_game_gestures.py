@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
+from game_client.detectors import FireRingParams, StrikeParams
 from game_client.evaluation import Case, Score, degrade, match_events, occlude, random_cases, run_case
-from game_client.gestures import Gesture, GestureRecognizer, recognize
+from game_client.gestures import Gesture, GestureRecognizer, RecognizerConfig, recognize
 from game_client.variants import Variant, load_labels, variant_labels, variant_motion
 from protocol.kinematics import fk
 
@@ -38,6 +41,29 @@ def test_each_gesture_script_gives_exactly_its_gesture(name: str) -> None:
 def test_near_misses_are_not_recognised(name: str) -> None:
     events, _ = _events(name)
     assert events == []
+
+
+@pytest.mark.parametrize(("name", "loose", "gesture"), [
+    ("neg_wave_joined", RecognizerConfig(fire_ring=FireRingParams(raise_seen=False)), Gesture.FIRE_RING),
+    ("neg_arm_circle", RecognizerConfig(strike=StrikeParams(min_drop_fwd=-math.inf)), Gesture.STRIKE),
+])
+def test_each_near_miss_is_rejected_by_its_rule(name: str, loose: RecognizerConfig, gesture: Gesture) -> None:
+    """Without the rule the near-miss would be recognised (so the rule, not luck, rejects it)."""
+    for v in (Variant(), Variant(speed=0.7, amplitude=0.85, fps=60.0), Variant(speed=1.4, amplitude=0.85, fps=15.0)):
+        m = variant_motion(name, v)
+        j = fk(m.poses, m.body)
+        assert recognize(m.times, j) == [], v
+        assert gesture in [e.gesture for e in recognize(m.times, j, config=loose)], v
+
+
+def test_arms_up_when_joining_then_a_real_fire_ring() -> None:
+    """Joined with the arms up: nothing until the arms have been seen down; the next throw counts."""
+    a, b = variant_motion("neg_wave_joined"), variant_motion("fire_ring")
+    t = np.concatenate([a.times, a.times[-1] + 1.0 / 30 + b.times])
+    j = np.concatenate([fk(a.poses, a.body), fk(b.poses, b.body)])
+    events = recognize(t, j)
+    assert [e.gesture for e in events] == [Gesture.FIRE_RING]
+    assert events[0].end_s > a.times[-1]
 
 
 @pytest.mark.parametrize("hz", [15.0, 30.0, 60.0, 120.0])

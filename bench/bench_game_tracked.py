@@ -1,0 +1,191 @@
+"""Game gestures tracked from pixels: scripts rendered as synthetic video, tracked, recognised.
+
+Usage::
+
+    .venv/bin/python bench/bench_game_tracked.py [--db PATH] [--scripts a,b,...] [--variants N]
+                                                 [--lead-in S] [--seed S] [--json]
+
+For every bundled single-gesture script (positives and near-misses; ``--rounds`` adds the
+whole-round scripts) and a few variants of it (speed x seed; the seed picks the synthetic person,
+so it varies body size and shape, outfit, room and lighting), the motion is
+
+1. preceded by ``--lead-in`` seconds of its first pose (the player standing in front of the camera
+   while the tracker learns the background and locks on; the labels move by as much),
+2. rendered as synthetic video by :class:`tracker_service.scene.SyntheticScene` (320x240, 30 Hz,
+   sensor noise, 12 empty-room frames first, the person facing the camera),
+3. tracked frame by frame from the pixels with :func:`tracker_service.pipeline.process_frame` (the
+   loop of :func:`tracker_service.evaluate.evaluate_motion`, without forced losses; settings as
+   ``mocap-tracker eval``: xor distance, occlusion dynamics, body model chosen automatically),
+4. fed to a fresh :class:`game_client.gestures.GestureRecognizer` with the tracker's joints,
+   visibility and confidence (frames without a pose are skipped, as the game client would).
+
+The same recogniser also runs on the scene's ground-truth joints (``truth``: the rendered person's
+true pose), which separates tracker errors from what rendering on another body changes. Events are
+matched to the scripts' labels as in ``bench/bench_game.py``; precision and recall per gesture.
+
+Not a test: the tracker is slow (tens of ms per frame on one core) and still being improved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from game_client.evaluation import Score, match_events
+from game_client.gestures import GestureEvent, GestureRecognizer
+from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
+from protocol.motion import Motion
+from tracker_service.body_models import BODY_MODELS
+from tracker_service.pipeline import TrackerConfig, new_state, process_frame
+from tracker_service.scene import SceneConfig, SyntheticScene
+from tracker_service.template_db import LoadedDatabase, default_db_dir, load_db
+
+_REPO = Path(__file__).resolve().parents[1]
+#: Speeds of the variants, cycled (1.0 = as authored).
+SPEEDS: tuple[float, ...] = (1.0, 0.8, 1.25)
+EMPTY_PREFIX = 12
+FPS = 30.0
+
+
+def with_lead_in(m: Motion, seconds: float) -> Motion:
+    """``m`` preceded by ``seconds`` of its first pose (poses ``(F + n, P)``)."""
+    n = round(seconds * m.fps)
+    poses = np.concatenate([np.repeat(m.poses[:1], n, axis=0), m.poses])
+    return Motion(poses=poses, fps=m.fps, name=m.name, body=m.body, source=m.source)
+
+
+def run_sequence(m: Motion, loaded: LoadedDatabase, cfg: TrackerConfig, seed: int) -> dict[str, Any]:
+    """Render, track and recognise one motion.
+
+    Returns
+    -------
+    dict
+        ``tracked`` and ``truth`` event lists (:class:`GestureEvent`), the offset (s) of motion
+        frame 0 in stream time, tracked-frame fraction, root-relative MPJPE (cm), subject height,
+        chosen body model and seconds taken.
+    """
+    scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=FPS, empty_prefix=EMPTY_PREFIX)
+    t0 = time.perf_counter()
+    scene = SyntheticScene(m, seed=seed, config=scfg)
+    try:
+        state = new_state(loaded.body)
+        tcfg = replace(cfg, background_frames=EMPTY_PREFIX)
+        rec_tracked, rec_truth = GestureRecognizer(), GestureRecognizer()
+        tracked: list[GestureEvent] = []
+        truth: list[GestureEvent] = []
+        errs: list[float] = []
+        present = 0
+        for i in range(scene.n_frames):
+            fr = scene.frame(i)
+            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, tcfg)
+            if not fr.truth.present:
+                continue
+            present += 1
+            truth += rec_truth.update(fr.timestamp, fr.truth.joints, fr.truth.visibility)
+            if res.joints is None:
+                continue
+            tracked += rec_tracked.update(fr.timestamp, res.joints, res.visibility, res.confidence)
+            je, jt = res.joints, fr.truth.joints
+            errs.append(float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean()))
+        height = float(scene.subject.spec.height)
+    finally:
+        scene.close()
+    return {"tracked": tracked, "truth": truth, "offset_s": EMPTY_PREFIX / FPS, "frames": present,
+            "tracked_fraction": round(len(errs) / max(present, 1), 3),
+            "mpjpe_cm": round(100 * float(np.mean(errs)), 1) if errs else None,
+            "subject_height_m": round(height, 3), "body": state.body.name,
+            "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def _shift(labels: tuple[Label, ...], dt: float) -> list[Label]:
+    return [Label(lb.gesture, lb.end_s + dt, lb.direction) for lb in labels]
+
+
+def _fmt(score: Score) -> dict[str, dict[str, Any]]:
+    return {g: {"precision": round(score.precision(g), 3), "recall": round(score.recall(g), 3),
+                "tp": score.tp.get(g, 0), "fp": score.fp.get(g, 0), "fn": score.fn.get(g, 0)}
+            for g in score.gestures()}
+
+
+def _ev(events: list[GestureEvent]) -> list[list[Any]]:
+    return [[e.gesture.value, round(e.t, 2)] + ([e.direction] if e.direction else []) for e in events]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--db", help="template database (default: out/db/game if built, else out/db/mMA)")
+    ap.add_argument("--scripts", help="comma-separated script names (default: every single-gesture script)")
+    ap.add_argument("--rounds", action="store_true", help="also the whole-round scripts (one variant each)")
+    ap.add_argument("--variants", type=int, default=3, help="variants per script: speeds 1, 0.8, 1.25 with "
+                                                            "different scene seeds (default 3)")
+    ap.add_argument("--lead-in", type=float, default=1.0, help="seconds of standing before each script (default 1)")
+    ap.add_argument("--seed", type=int, default=0, help="first scene seed")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    args = ap.parse_args()
+
+    db_path = Path(args.db) if args.db else (_REPO / "out" / "db" / "game")
+    if not args.db and not (db_path / "manifest.json").is_file():
+        db_path = default_db_dir()
+    loaded = load_db(db_path)
+    cfg = TrackerConfig(distance="xor", occlusion=True, body_candidates=tuple(b.name for b in BODY_MODELS))
+    labels = load_labels()
+    names = (args.scripts.split(",") if args.scripts
+             else [n for n in labels if not n.startswith("round_")])
+    jobs = [(n, Variant(speed=SPEEDS[k % len(SPEEDS)], fps=FPS), args.seed + k)
+            for n in names for k in range(args.variants)]
+    if args.rounds:
+        jobs += [(n, Variant(fps=FPS), args.seed) for n in labels if n.startswith("round_")]
+
+    score_tracked, score_truth = Score(), Score()
+    rows = []
+    t_start = time.perf_counter()
+    for k, (name, v, seed) in enumerate(jobs):
+        m = with_lead_in(variant_motion(name, v), args.lead_in)
+        out = run_sequence(m, loaded, cfg, seed)
+        lbs = _shift(variant_labels(labels[name], v), out["offset_s"] + args.lead_in)
+        mt, mg = match_events(out["tracked"], lbs), match_events(out["truth"], lbs)
+        score_tracked.add(mt)
+        score_truth.add(mg)
+        row = {"script": name, "speed": v.speed, "seed": seed,
+               "labels": [[lb.gesture, round(lb.end_s, 2)] for lb in lbs],
+               "tracked_events": _ev(out["tracked"]), "truth_events": _ev(out["truth"]),
+               "tracked_misses": [lb.gesture for lb in mt.misses], "tracked_false": _ev(list(mt.false_positives)),
+               **{key: out[key] for key in ("frames", "tracked_fraction", "mpjpe_cm", "subject_height_m", "body",
+                                           "seconds")}}
+        rows.append(row)
+        print(f"[{k + 1}/{len(jobs)}] {name} x{v.speed:g} seed {seed}: tracked {row['tracked_events']} "
+              f"truth {row['truth_events']} (mpjpe {row['mpjpe_cm']} cm, {row['seconds']} s)", file=sys.stderr)
+    res = {"machine": f"{platform.node()} {platform.processor() or platform.machine()}",
+           "database": {"path": str(loaded.path), "templates": int(loaded.db.n_leaves),
+                        "scripts": loaded.meta.get("scripts", []), "body": loaded.body.name},
+           "tracker": {"distance": cfg.distance, "occlusion": cfg.occlusion, "body": "auto"},
+           "lead_in_s": args.lead_in, "fps": FPS, "sequences": len(rows),
+           "tracked": _fmt(score_tracked), "truth": _fmt(score_truth),
+           "tracked_latency_p50_ms": round(score_tracked.latency_percentile(50), 1),
+           "tracked_latency_p95_ms": round(score_tracked.latency_percentile(95), 1),
+           "mpjpe_cm_mean": round(float(np.mean([r["mpjpe_cm"] for r in rows if r["mpjpe_cm"] is not None])), 1),
+           "seconds": round(time.perf_counter() - t_start, 1), "rows": rows}
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"database {res['database']['path']} ({res['database']['templates']} templates, "
+          f"{len(res['database']['scripts'])} scripts); {len(rows)} sequences, {res['seconds']} s")
+    print("| gesture | tracked precision | tracked recall | TP | FP | FN | truth precision | truth recall |")
+    print("|---|---|---|---|---|---|---|---|")
+    for g in sorted(set(res["tracked"]) | set(res["truth"])):
+        a, b = res["tracked"].get(g, {}), res["truth"].get(g, {})
+        print(f"| {g} | {a.get('precision', 1.0):.3f} | {a.get('recall', 1.0):.3f} | {a.get('tp', 0)} | "
+              f"{a.get('fp', 0)} | {a.get('fn', 0)} | {b.get('precision', 1.0):.3f} | {b.get('recall', 1.0):.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

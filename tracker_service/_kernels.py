@@ -439,3 +439,64 @@ def capsule_runs_batch_kernel(caps: NDArray[np.float64], height: int,
     return data[:total].copy(), ptr
 
 # ---- end of the capsule silhouette rasteriser ----
+
+
+@njit(cache=True, nogil=True)
+def lower_column_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64], lower_frac: float,
+                        out: NDArray[np.float64]) -> None:
+    """Median pixel column of each template's lower part (rows at or below
+    ``top + lower_frac * (bottom - top)``), as ``np.median`` of the pixels' x would give.
+
+    Parameters
+    ----------
+    data : (R, 3) int16
+        Runs ``(y, x_start, x_end)`` of all templates.
+    ptr : (T + 1,) int64
+    lower_frac : float
+    out : (T,) float64
+        Written with the medians (NaN for an empty template).
+    """
+    width = 1
+    for r in range(data.shape[0]):
+        width = max(width, int(data[r, 2]) + 1)
+    hist = np.zeros(width + 1, np.int64)
+    for t in range(ptr.shape[0] - 1):
+        a, b = ptr[t], ptr[t + 1]
+        if b <= a:
+            out[t] = np.nan
+            continue
+        top = data[a, 0]
+        bot = data[a, 0]
+        for r in range(a, b):
+            top = min(top, data[r, 0])
+            bot = max(bot, data[r, 0])
+        thr = top + lower_frac * (bot - top)
+        hist[:] = 0
+        n = 0
+        for r in range(a, b):
+            if data[r, 0] >= thr and data[r, 2] > data[r, 1]:
+                x0 = max(int(data[r, 1]), 0)
+                x1 = max(int(data[r, 2]), 0)
+                hist[x0] += 1
+                hist[x1] -= 1
+                n += x1 - x0
+        if n == 0:
+            out[t] = np.nan
+            continue
+        k1 = (n - 1) // 2
+        k2 = n // 2
+        run = 0
+        cum = 0
+        v1 = -1.0
+        v2 = -1.0
+        for x in range(width):
+            run += hist[x]
+            if run <= 0:
+                continue
+            if v1 < 0 and cum + run > k1:
+                v1 = x
+            if cum + run > k2:
+                v2 = x
+                break
+            cum += run
+        out[t] = 0.5 * (v1 + v2)

@@ -22,13 +22,14 @@ from protocol.skeleton import Body
 from .body_models import body_model
 from .camera import Camera
 from .features import LevelFeatures
+from .placement import scaled_placement
 from .tree_filter import FilterDB, FilterParams, initial_state, step
 
 __all__ = ["BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
 
 
 def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], observed: NDArray[np.float64],
-                 db: FilterDB, db_body: Body, params: FilterParams,
+                 db: FilterDB, db_body: Body, camera: Camera, params: FilterParams,
                  candidates: Sequence[str]) -> dict[str, list[float]]:
     """Append each candidate's best silhouette distance for this frame.
 
@@ -48,6 +49,8 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
         Placement measured from the silhouette (feet line), for the database's body size.
     db : FilterDB
     db_body : Body
+    camera : Camera
+        The templates' camera.
     params : FilterParams
     candidates : sequence of str
         Body model names.
@@ -60,8 +63,7 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
     h_db = db_body.height
     for name in candidates:
         k = body_model(name).body.height / h_db
-        obs = np.array(observed, dtype=np.float64, copy=True)
-        obs[2] *= k
+        obs = scaled_placement(np.asarray(observed, np.float64), k, camera)
         _, est = step(initial_state(obs), db, features, params, obs)
         out.setdefault(name, []).append(float(est.distance))
     return out
@@ -72,14 +74,19 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     """Standing height (metres) of the subject from the silhouette's vertical extent.
 
     The feet line gives the depth (``observed`` is the database body's placement at that depth:
-    ``d = d_ref / s``); valid while the head is the top of the silhouette (the caller checks).
+    ``d = d_ref / s``) and the row of the floor under the body (not the toe tips, which are
+    nearer the camera and lower in the image); for a level camera the height is the rows from that
+    floor point to the top of the silhouette times ``d / f``. Valid while the head is the top of
+    the silhouette (the caller checks).
     """
     ys = np.flatnonzero(mask.any(axis=1))
     if len(ys) == 0:
         return float("nan")
     ref = np.array([0.0, db_body.standing_root_height(), 0.0])
-    d = float(camera.depth(ref)) / max(float(observed[2]), 1e-6)
-    return float((ys[-1] - ys[0] + 1) * d / camera.fy)
+    s = max(float(observed[2]), 1e-6)
+    d = float(camera.depth(ref)) / s
+    floor_row = camera.cy + s * (float(camera.project(np.zeros(3))[1]) - camera.cy)
+    return float((floor_row - (ys[0] - 0.5)) * d / camera.fy)
 
 
 def candidates_near(candidates: Sequence[str], height_m: float, tolerance_m: float = 0.08,

@@ -28,6 +28,7 @@ from protocol.skeleton import JOINT_INDEX, N_PARTS, PARTS, POSE_SIZE, ROT_JOINTS
 
 from .camera import Camera, default_camera
 from .features import LEVEL_SIZES
+from .placement import placement_columns
 from .pose_pruning import prune_poses
 from .silhouette_distance import RunSet
 from .silhouette_render import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
@@ -305,12 +306,15 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     level_runs = tuple(
         RunSet([runs[lvl].runs(int(t)) for t in tree.node_template[lvl]]) for lvl in range(tree.n_levels)
     )
+    level_scale = tuple(c.width / cam.width for c in cams)
+    level_column, ref_column = placement_columns(level_runs, level_scale, cam)
     db = FilterDB(
-        tree=tree, level_runs=level_runs, level_scale=tuple(c.width / cam.width for c in cams),
+        tree=tree, level_runs=level_runs, level_scale=level_scale,
         center=(cam.cx, cam.cy), leaf_poses=leaf_poses.astype(np.float32), leaf_visible=vis,
         leaf_anc=anc, leaf_heading=heading_of(leaf_poses).astype(np.float32), trans_ptr=trans_ptr,
         trans_idx=dst.astype(np.int64), trans_p=trans_p,
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
+        level_column=level_column, ref_column=ref_column,
     )
     stats["total_s"] = time.perf_counter() - t0
     log.info("database: %s", stats)

@@ -29,7 +29,7 @@ from .background import BackgroundModel, BackgroundParams, learn_background, sub
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
 from .features import Distance, preprocess
-from .placement import feet_scale, observed_placement, placement_to_root
+from .placement import feet_scale, observed_placement, placement_to_root, scaled_placement
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
@@ -196,9 +196,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     feats = preprocess(mask, config.distance, config.alpha, config.beta)
     t2 = time.perf_counter()
-    obs = observed_placement(mask, camera)
-    if obs is not None:
-        obs[2] *= state.body_scale  # a subject k times the templates' size looks k times larger at that depth
+    raw = observed_placement(mask, camera)  # for the templates' own body size
+    # a subject k times the templates' size looks k times larger at that depth, feet on the same row
+    obs = None if raw is None else scaled_placement(raw, state.body_scale, camera)
     fstate = state.filter
     if not config.occlusion:
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
@@ -211,16 +211,14 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     scores = state.body_scores
     statures = state.statures
     body, scale = state.body, state.body_scale
-    if phase == "initialising" and config.body_candidates and obs is not None:
-        raw = obs.copy()
-        raw[2] /= state.body_scale
+    if phase == "initialising" and config.body_candidates and raw is not None:
         if int(np.argmax(fk(pose, db_body)[:, 1])) == JOINT_INDEX["head_top"]:  # head on top: height measurable
             statures = (*statures, measured_stature(mask, raw, camera, db_body))
         ref = float(np.median(statures)) if statures else db_body.height
         cands = candidates_near(config.body_candidates, ref)
         sel_feats = preprocess(mask, "xor")  # symmetric: nwXOR's cheap contour misses favour small bodies
-        scores = score_bodies(scores, sel_feats, raw, db, db_body, replace(config.filter, sigma=(0.02, 0.015, 0.012)),
-                              cands)
+        sel_params = replace(config.filter, sigma=(0.02, 0.015, 0.012))
+        scores = score_bodies(scores, sel_feats, raw, db, db_body, camera, sel_params, cands)
     if phase == "initialising" and frames_in_phase >= config.init_frames:
         if config.body_candidates:
             choice: BodyChoice = BodyChoice.from_scores(
@@ -234,8 +232,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     place = est.placement.copy()
     if config.depth_from_feet:  # the feet line measures depth better than the template fit's scale
         s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)
-        if s_feet is not None and abs(s_feet / place[2] - 1.0) < 0.15:
-            place[2] = s_feet
+        if s_feet is not None and abs(scale * s_feet / place[2] - 1.0) < 0.15:
+            # s_feet is the floor-row ratio (the templates' size); the subject is `scale` times it
+            place = scaled_placement(np.array([place[0], 0.0, s_feet]), scale, camera)
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)
     joints = fk(pose, body)
     reinits = state.reinits + int(est.reinitialised)

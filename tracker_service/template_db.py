@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from protocol.skeleton import Body
 
 from .camera import Camera
+from .placement import placement_columns
 from .silhouette_distance import RunSet
 from .template_tree import TemplateTree
 from .tree_filter import FilterDB
@@ -175,14 +176,17 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
             template_leaf=arrays["tree_template_leaf"], thresholds=tuple(man["thresholds"]),
         )
         runs = tuple(RunSet(data=arrays[f"runs_data_{lvl}"], ptr=arrays[f"runs_ptr_{lvl}"]) for lvl in range(n_levels))
-        db = FilterDB(tree=tree, level_runs=runs, level_scale=tuple(man["level_scale"]),
-                      center=(float(man["center"][0]), float(man["center"][1])),
-                      **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
-                                                "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")})
         body = Body(name=man["body"]["name"], offsets=np.array(arrays["body_offsets"]),
                     capsule_radii=np.array(arrays["body_capsule_radii"]), measurements=man["body"]["measurements"])
         cam = Camera(**man["camera"] | {"pose": np.array(arrays["camera_pose"]),
                                         "dist": np.array(man["camera"]["dist"])})
+        level_scale = tuple(float(v) for v in man["level_scale"])
+        level_column, ref_column = placement_columns(runs, level_scale, cam)
+        db = FilterDB(tree=tree, level_runs=runs, level_scale=level_scale,
+                      center=(float(man["center"][0]), float(man["center"][1])),
+                      **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
+                                                "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")},
+                      level_column=level_column, ref_column=ref_column)
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:

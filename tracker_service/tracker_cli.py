@@ -27,6 +27,9 @@ log = logging.getLogger(__name__)
 _REPO = Path(__file__).resolve().parents[1]
 #: Motion of ``--source synthetic`` without a file: a shipped gesture script.
 DEFAULT_SCRIPT = _REPO / "protocol" / "scripts" / "crouch.toml"
+#: Gesture scripts added to the default database: motions the recordings lack (crouch, side-steps,
+#: the game's gestures and near-misses). Data files only: the tracker does not import the game.
+DEFAULT_SCRIPT_DIRS = (_REPO / "protocol" / "scripts", _REPO / "game_client" / "scripts")
 _DEFAULT_BODY = "mMA"
 
 
@@ -54,8 +57,11 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
     bp.add_argument("--mocap", metavar="DIR", help="recordings folder (default: ../shared/mocap or $MOCAP_DATA)")
     bp.add_argument("--bodies", type=_bodies, default=[_DEFAULT_BODY], metavar="NAMES|all",
                     help=f"comma-separated body models, or all 30 (default: {_DEFAULT_BODY})")
-    bp.add_argument("--scripts", metavar="DIR", action="append", default=[],
-                    help="also add the poses of every gesture script (*.toml) in DIR (repeatable)")
+    bp.add_argument("--scripts", metavar="DIR", action="append", default=None,
+                    help="add the poses of every gesture script (*.toml) in DIR (repeatable; default: "
+                         "the game's and protocol's bundled scripts, as the paper's game database "
+                         "was built from the game's motions)")
+    bp.add_argument("--no-scripts", action="store_true", help="recordings only")
     bp.add_argument("--out", metavar="PATH", help="output folder (default: out/db/<body>; with several "
                                                    "bodies, a parent folder)")
     bp.add_argument("--max-poses", type=int, metavar="N", help="cap the pruned pose set (quick builds)")
@@ -120,8 +126,27 @@ def ensure_db(path: str | None, body: str = _DEFAULT_BODY, build_if_missing: boo
         if path or not build_if_missing or (p / "manifest.json").exists():
             raise
         log.warning("%s; building it now (a few minutes, cached for next time)", exc)
-        _build(body, p, None, [], None, None)
+        _build(body, p, None, [str(d) for d in DEFAULT_SCRIPT_DIRS], None, None)
         return load_db(p)
+
+
+def _gesture_scripts(dirs: Sequence[str]) -> list[Path]:
+    """The gesture scripts (``*.toml`` with ``[[key]]`` tables) in the given folders; other TOML
+    files there (e.g. a game's label file) are skipped with a note."""
+    import tomllib
+
+    out = []
+    for p in sorted(q for d in dirs for q in Path(d).glob("*.toml")):
+        try:
+            doc = tomllib.loads(p.read_text())
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            out.append(p)  # let the script reader report it with file and line
+            continue
+        if "key" in doc:
+            out.append(p)
+        else:
+            print(f"build-db: {p} has no [[key]] tables: not a gesture script, skipped", file=sys.stderr)
+    return out
 
 
 def _build(body_name: str, out: Path, mocap: str | None, scripts: list[str], max_poses: int | None,
@@ -141,7 +166,7 @@ def _build(body_name: str, out: Path, mocap: str | None, scripts: list[str], max
     entries = [e for i, e in enumerate(index_entries()) if not is_held_out(i)]
     if takes:
         entries = entries[:takes]
-    script_files = sorted(p for d in scripts for p in Path(d).glob("*.toml"))
+    script_files = _gesture_scripts(scripts)
     t0 = time.perf_counter()
     motions = training_motions(body, entries, scripts=script_files, progress=True)
     db, stats = build_filter_db(motions, body, default_camera(), DbBuildConfig(max_poses=max_poses), progress=True)
@@ -156,7 +181,9 @@ def _cmd_build_db(args: argparse.Namespace) -> int:
 
     for name in args.bodies:
         out = Path(args.out) / name if (args.out and len(args.bodies) > 1) else Path(args.out or default_db_dir(name))
-        meta = _build(name, out, args.mocap, args.scripts, args.max_poses, args.takes)
+        dirs = [] if args.no_scripts else (args.scripts if args.scripts is not None
+                                           else [str(d) for d in DEFAULT_SCRIPT_DIRS])
+        meta = _build(name, out, args.mocap, dirs, args.max_poses, args.takes)
         s = meta["stats"]
         print(f"{name}: {int(s['poses'])} poses from {int(s['frames'])} frames; tree "
               f"{int(s['level1_nodes'])}/{int(s['level2_nodes'])}/{int(s['level3_nodes'])} nodes; "

@@ -67,6 +67,12 @@ class FilterDB:
         Squared joint-angle differences (rad^2) to each neighbour, summed per body part.
     sigma_part : (N_PARTS,) float32
         Per-part standard deviation of eq. 13 (radians per frame at 30 Hz).
+    level_column : tuple of (n_L,) float64, optional
+        Each node's template column at the reference placement, full-resolution pixels
+        (:func:`tracker_service.placement.template_columns`); empty: no per-template correction
+        of the observed shift.
+    ref_column : float
+        The column :func:`tracker_service.placement.observed_placement` assumes for every template.
     """
 
     tree: TemplateTree
@@ -83,6 +89,8 @@ class FilterDB:
     nbr_idx: NDArray[np.int64]
     nbr_dpart: NDArray[np.float32]
     sigma_part: NDArray[np.float32]
+    level_column: tuple[NDArray[np.float64], ...] = ()
+    ref_column: float = float("nan")
 
     @property
     def n_leaves(self) -> int:
@@ -141,6 +149,7 @@ class FilterParams:
     sigma: tuple[float, ...] = (0.01, 0.008, 0.006)
     keep_rel: float = 2e-3
     max_keep: tuple[int, ...] = (16, 48)
+    keep_likelihood: tuple[int, ...] = (8, 16)
     grid: tuple[tuple[int, int], ...] = ((3, 3), (3, 1), (1, 1))
     refine: int = 6
     placement_sigma_px: float = 6.0
@@ -311,9 +320,27 @@ def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np
 
 def _placement_cost(places: NDArray[np.float64], pred: NDArray[np.float64], params: FilterParams
                     ) -> NDArray[np.float64]:
-    """Negative log prior of placements around the predicted one (Gaussian in shift and scale)."""
-    return 0.5 * (((places[..., 0] - pred[0]) / params.placement_sigma_px) ** 2
-                  + ((places[..., 2] / pred[2] - 1.0) / params.placement_sigma_scale) ** 2)
+    """Negative log prior of placements around the predicted ones (Gaussian in shift and scale);
+    ``pred`` broadcasts against ``places`` (both ``(..., 3)``)."""
+    return 0.5 * (((places[..., 0] - pred[..., 0]) / params.placement_sigma_px) ** 2
+                  + ((places[..., 2] / pred[..., 2] - 1.0) / params.placement_sigma_scale) ** 2)
+
+
+def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: NDArray[np.float64],
+                      obs_weight: float) -> NDArray[np.float64]:
+    """Predicted placement of each node: the observed shift assumes every template's lower-body
+    column is the root's; a template whose column lies elsewhere (a leg or arm to one side) is
+    shifted by the difference, in the observation's share of the prediction.
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    out = np.repeat(pred[None], len(nodes), axis=0)
+    if obs_weight > 0 and db.level_column and np.isfinite(db.ref_column):
+        corr = obs_weight * pred[2] * (db.ref_column - db.level_column[level][nodes])
+        out[:, 0] += np.nan_to_num(corr)
+    return out
 
 
 def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
@@ -338,14 +365,16 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     """
     fresh = len(state.leaves) == 0
     pred = state.placement + 0.5 * state.velocity
+    w_obs = 0.0
     if observed_placement is not None:
         obs = np.asarray(observed_placement, np.float64)
-        pred = obs if fresh else params.observation_weight * obs + (1 - params.observation_weight) * pred
+        w_obs = 1.0 if fresh else params.observation_weight
+        pred = w_obs * obs + (1 - w_obs) * pred
     prior = predict_leaves(state, db, params)
     tree = db.tree
     n_levels = tree.n_levels
     nodes = np.arange(tree.level_sizes[0], dtype=np.int64)
-    centers = np.repeat(pred[None], len(nodes), axis=0)
+    centers = _node_predictions(db, 0, nodes, pred, w_obs)
     evals: list[int] = []
     post = np.zeros(0)
     node_place = centers
@@ -357,7 +386,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
         d, places = _eval_level(db, features[lvl], lvl, nodes, centers, offs)
         evals.append(d.size)
-        total = 0.5 * (d / params.sigma[lvl]) ** 2 + _placement_cost(places, pred, params)  # eq. 6 x placement prior
+        node_pred = _node_predictions(db, lvl, nodes, pred, w_obs)
+        total = 0.5 * (d / params.sigma[lvl]) ** 2 + _placement_cost(places, node_pred[:, None], params)  # eq. 6
         best = np.argmin(total, axis=1)
         rows = np.arange(len(nodes))
         cost = total[rows, best]
@@ -368,10 +398,17 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         if lvl < n_levels - 1:
             keep = np.flatnonzero(post >= params.keep_rel * post.max())
             keep = keep[np.argsort(-post[keep])][: params.max_keep[lvl]]
+            n_lik = params.keep_likelihood[lvl] if lvl < len(params.keep_likelihood) else 0
+            if n_lik:  # data-driven proposal: the best nodes by likelihood alone survive a misleading prior
+                keep = np.union1d(keep, np.argsort(cost)[:n_lik])
             kids = [tree.children(lvl, int(nodes[k])) for k in keep]
-            centers = np.concatenate([np.repeat(node_place[k][None], len(c), axis=0) for k, c in zip(keep, kids,
-                                                                                               strict=True)])
+            parent = np.repeat(keep, [len(c) for c in kids])
+            centers = node_place[parent].copy()
+            parent_nodes = nodes[parent]
             nodes = np.concatenate(kids)
+            if db.level_column:  # a child's template column differs from its parent's
+                dcol = db.level_column[lvl][parent_nodes] - db.level_column[lvl + 1][nodes]
+                centers[:, 0] += np.nan_to_num(centers[:, 2] * dcol)
     leaves = nodes
     order = np.argsort(-post)
     # refine the placement of the best leaves at full resolution
@@ -379,7 +416,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     offs = _offsets(2.0, 0.01, 3, 3)
     d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
     evals[-1] += d_ref.size
-    total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _placement_cost(places, pred, params)
+    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs)
+    total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _placement_cost(places, top_pred[:, None], params)
     best = np.argmin(total, axis=1)
     rows = np.arange(len(top))
     lp = np.log(np.maximum(post[top], 1e-300)) + cost[top] - total[rows, best]

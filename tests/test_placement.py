@@ -1,0 +1,108 @@
+"""Global placement: the observed shift and scale, the per-template column (kernel vs reference),
+the placement of templates for a subject of another size, and the world root it gives back."""
+
+import numpy as np
+import pytest
+
+from protocol import fk
+from protocol.skeleton import JOINT_INDEX, ROT_SLOT, standing_pose
+from tracker_service.body_models import body_model
+from tracker_service.body_selection import measured_stature
+from tracker_service.camera import default_camera
+from tracker_service.placement import (
+    lower_body_column,
+    observed_placement,
+    placement_to_root,
+    reference_floor_row,
+    scaled_placement,
+    template_columns,
+    template_columns_reference,
+)
+from tracker_service.silhouette_distance import RunSet, mask_to_runs, runs_to_mask
+from tracker_service.silhouette_render import render_silhouette, silhouette_runs
+
+
+def test_template_columns_kernel_matches_reference(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    db, *_ = small_db
+    shapes = ((60, 80), (120, 160), (240, 320))
+    for lvl, shape in enumerate(shapes):
+        runs = db.level_runs[lvl]
+        pick = rng.choice(len(runs), size=min(60, len(runs)), replace=False)
+        sub = RunSet([runs.runs(int(i)) for i in pick] + [np.zeros((0, 3), np.int16)])  # and an empty one
+        got = template_columns(sub, db.level_scale[lvl])
+        want = template_columns_reference(sub, db.level_scale[lvl], shape)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got[:-1], want[:-1], atol=1e-9)
+        assert np.isnan(got[-1])
+    # the database carries them, one per node and level
+    assert [len(c) for c in db.level_column] == list(db.tree.level_sizes)
+
+
+def test_template_column_is_the_silhouette_column_at_full_resolution() -> None:
+    cam = default_camera()
+    body = body_model("mMA").body
+    pose = standing_pose(body)
+    slot = ROT_SLOT[JOINT_INDEX["l_shoulder"]]
+    pose[3 + 3 * slot: 6 + 3 * slot] = [0.0, 0.0, 1.2]  # an arm raised to one side
+    mask = render_silhouette(fk(pose, body), body.capsule_radii, cam)
+    col = template_columns(RunSet([mask_to_runs(mask)]), 1.0)[0]
+    assert col == lower_body_column(runs_to_mask(mask_to_runs(mask), mask.shape))
+    assert col == pytest.approx(lower_body_column(mask))
+
+
+@pytest.mark.parametrize("subject_name", ["wSY", "mLA", "cMA"])
+@pytest.mark.parametrize("spot", [(0.0, 0.0), (0.35, -0.6), (-0.3, -1.2)])
+def test_scaled_placement_recovers_the_root_of_another_size(subject_name: str, spot: tuple[float, float]) -> None:
+    """A subject k times the templates' height, standing anywhere on the floor: the template drawn
+    at the scaled placement has its feet on the observed feet row and gives back the subject's
+    root position."""
+    cam = default_camera()
+    tpl_body = body_model("mMA").body
+    subject = body_model(subject_name).body
+    k = subject.height / tpl_body.height
+    truth = standing_pose(subject)
+    truth[0], truth[2] = spot
+    mask = render_silhouette(fk(truth, subject), subject.capsule_radii, cam)
+    obs = observed_placement(mask, cam)
+    assert obs is not None
+    place = scaled_placement(obs, k, cam)
+    # the template's floor row lands on the subject's
+    floor = reference_floor_row(cam)
+    assert cam.cy + place[1] + place[2] * (floor - cam.cy) == pytest.approx(cam.cy + obs[2] * (floor - cam.cy))
+    # and the template's root maps to the subject's root
+    tpl = standing_pose(tpl_body)
+    root = placement_to_root(place, tpl[:3], cam, body_scale=k)
+    # depth to a pixel of the feet row (a child's shorter foot is 2 px higher: 5 cm at 3 m)
+    np.testing.assert_allclose(root[:2], truth[:2], atol=0.03)
+    d_true, d_est = cam.depth(truth[:3]), cam.depth(root)
+    assert abs(d_est / d_true - 1.0) < 0.025
+    # the template drawn there overlaps the subject's silhouette well
+    runs = silhouette_runs(fk(tpl, tpl_body), tpl_body.capsule_radii, cam)
+    drawn = np.zeros_like(mask)
+    for y, x0, x1 in runs:
+        yy0 = int(np.floor(cam.cy + place[1] + place[2] * (y - cam.cy) + 0.5))
+        yy1 = int(np.floor(cam.cy + place[1] + place[2] * (y + 1 - cam.cy) + 0.5))
+        xa = int(np.floor(cam.cx + place[0] + place[2] * (x0 - cam.cx) + 0.5))
+        xb = int(np.floor(cam.cx + place[0] + place[2] * (x1 - cam.cx) + 0.5))
+        drawn[max(yy0, 0):max(yy1, 0), max(xa, 0):max(xb, 0)] = True
+    iou = (drawn & mask).sum() / (drawn | mask).sum()
+    assert iou > 0.75
+    rows = np.flatnonzero(mask.any(axis=1))
+    drawn_rows = np.flatnonzero(drawn.any(axis=1))
+    assert abs(int(drawn_rows[-1]) - int(rows[-1])) <= 2  # feet on the same row
+
+
+@pytest.mark.parametrize("spot", [(0.0, 0.0), (0.35, -0.6), (-0.3, -1.2)])
+def test_measured_stature_of_standing_bodies(spot: tuple[float, float]) -> None:
+    cam = default_camera()
+    db_body = body_model("mMA").body
+    for name in ("wSY", "mMA", "mTA", "cMA", "wTY"):
+        b = body_model(name).body
+        pose = standing_pose(b)
+        pose[0], pose[2] = spot
+        mask = render_silhouette(fk(pose, b), b.capsule_radii, cam)
+        obs = observed_placement(mask, cam)
+        assert obs is not None
+        # within a pixel of the head and feet rows at that distance (children's feet are shorter)
+        tol = 0.03 * float(cam.depth(pose[:3])) / 3.0
+        assert measured_stature(mask, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name

@@ -34,7 +34,6 @@ import platform
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -46,9 +45,9 @@ from protocol.motion import Motion
 from tracker_service.body_models import BODY_MODELS
 from tracker_service.pipeline import TrackerConfig, new_state, process_frame
 from tracker_service.scene import SceneConfig, SyntheticScene
-from tracker_service.template_db import LoadedDatabase, default_db_dir, load_db
+from tracker_service.template_db import LoadedDatabase
+from tracker_service.tracker_cli import ensure_db
 
-_REPO = Path(__file__).resolve().parents[1]
 #: Speeds of the variants, cycled (1.0 = as authored).
 SPEEDS: tuple[float, ...] = (1.0, 0.8, 1.25)
 EMPTY_PREFIX = 12
@@ -121,7 +120,8 @@ def _ev(events: list[GestureEvent]) -> list[list[Any]]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--db", help="template database (default: out/db/game if built, else out/db/mMA)")
+    ap.add_argument("--db", help="template database (default: the tracker's default, out/db/mMA, which "
+                                 "includes the game's scripts; built on first use)")
     ap.add_argument("--scripts", help="comma-separated script names (default: every single-gesture script)")
     ap.add_argument("--rounds", action="store_true", help="also the whole-round scripts (one variant each)")
     ap.add_argument("--variants", type=int, default=3, help="variants per script: speeds 1, 0.8, 1.25 with "
@@ -131,10 +131,7 @@ def main() -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args()
 
-    db_path = Path(args.db) if args.db else (_REPO / "out" / "db" / "game")
-    if not args.db and not (db_path / "manifest.json").is_file():
-        db_path = default_db_dir()
-    loaded = load_db(db_path)
+    loaded = ensure_db(args.db)
     cfg = TrackerConfig(distance="xor", occlusion=True, body_candidates=tuple(b.name for b in BODY_MODELS))
     labels = load_labels()
     names = (args.scripts.split(",") if args.scripts

@@ -53,6 +53,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 from .features import FrameFeatures, Vec3
 
@@ -62,6 +63,23 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+class _Occludable(Protocol):
+    t_seen: float
+
+    def reset(self) -> None: ...
+
+
+def _seen(det: _Occludable, t: float, visible: bool, hold_s: float) -> bool:
+    """Common occlusion handling: a detector whose arms are not visible keeps its state for
+    ``hold_s`` seconds, then resets; returns whether this frame can be used."""
+    if not visible:
+        if t - det.t_seen > hold_s:
+            det.reset()
+        return False
+    det.t_seen = t
+    return True
 
 
 @dataclass(frozen=True)
@@ -172,11 +190,8 @@ class FireRingDetector:
 
     def update(self, f: FrameFeatures) -> Candidate | None:
         p = self.p
-        if not (f.ok and f.arm_l_ok and f.arm_r_ok):
-            if f.t - self.t_seen > p.occlusion_hold_s:
-                self.reset()
+        if not _seen(self, f.t, f.ok and f.arm_l_ok and f.arm_r_ok, p.occlusion_hold_s):
             return None
-        self.t_seen = f.t
         wl, wr = f.wrist_l, f.wrist_r
         assert wl is not None and wr is not None
         lo, hi = min(wl[1], wr[1]), max(wl[1], wr[1])
@@ -290,11 +305,8 @@ class StrikeDetector:
 
     def update(self, f: FrameFeatures) -> Candidate | None:
         p = self.p
-        if not (f.ok and f.arm_r_ok):
-            if f.t - self.t_seen > p.occlusion_hold_s:
-                self.reset()
+        if not _seen(self, f.t, f.ok and f.arm_r_ok, p.occlusion_hold_s):
             return None
-        self.t_seen = f.t
         wr = f.wrist_r
         assert wr is not None
         up = float(wr[1])
@@ -385,11 +397,8 @@ class TransformDetector:
 
     def update(self, f: FrameFeatures) -> Candidate | None:
         p = self.p
-        if not (f.ok and f.arm_l_ok and f.arm_r_ok):
-            if f.t - self.t_seen > p.occlusion_hold_s:
-                self.reset()
+        if not _seen(self, f.t, f.ok and f.arm_l_ok and f.arm_r_ok, p.occlusion_hold_s):
             return None
-        self.t_seen = f.t
         wl, wr = f.wrist_l, f.wrist_r
         assert wl is not None and wr is not None
         both_out = self._is_out(wl, 0.0) and self._is_out(wr, 0.0)

@@ -30,6 +30,7 @@ from .body_selection import BodyChoice, candidates_near, measured_stature, score
 from .camera import Camera
 from .features import Distance, preprocess
 from .placement import feet_scale, observed_placement, placement_to_root, scaled_placement
+from .skin import SkinModel, observe_skin
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
@@ -66,6 +67,9 @@ class TrackerConfig:
     depth_from_feet : bool
         Take the subject's depth from the silhouette's feet line (scaled for the body model)
         rather than from the scale of the best template fit.
+    skin : SkinModel or None
+        Skin colour locus of the hand cue (:mod:`tracker_service.skin`); None: silhouettes only
+        (the paper's observation model).
     """
 
     distance: Distance = "nwxor"
@@ -81,6 +85,7 @@ class TrackerConfig:
     body_candidates: tuple[str, ...] = ()
     use_mean_pose: bool = False
     depth_from_feet: bool = True
+    skin: SkinModel | None = field(default_factory=SkinModel)
 
 
 @dataclass(frozen=True)
@@ -202,7 +207,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     fstate = state.filter
     if not config.occlusion:
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
-    fstate, est = step(fstate, db, feats, config.filter, obs)
+    skin = (observe_skin(frame, mask, config.skin)
+            if config.skin is not None and frame.ndim == 3 and frame.shape[2] == 3 else None)
+    fstate, est = step(fstate, db, feats, config.filter, obs, skin)
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     body_changed = False

@@ -22,6 +22,7 @@ from protocol.skeleton import Body
 from .camera import Camera
 from .placement import placement_columns
 from .silhouette_distance import RunSet
+from .skin import leaf_hand_points
 from .template_tree import TemplateTree
 from .tree_filter import FilterDB
 
@@ -186,7 +187,8 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
                       center=(float(man["center"][0]), float(man["center"][1])),
                       **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
                                                 "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")},
-                      level_column=level_column, ref_column=ref_column)
+                      level_column=level_column, ref_column=ref_column,
+                      leaf_hands=leaf_hand_points(arrays["leaf_poses"], body, cam))
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:

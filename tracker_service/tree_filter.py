@@ -33,6 +33,7 @@ from protocol.skeleton import N_PARTS, POSE_SIZE
 
 from .features import LevelFeatures
 from .silhouette_distance import RunSet, evaluate_templates
+from .skin import HAND_PARTS, SkinObservation, hand_cost
 from .template_tree import TemplateTree
 
 __all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "step"]
@@ -73,6 +74,9 @@ class FilterDB:
         of the observed shift.
     ref_column : float
         The column :func:`tracker_service.placement.observed_placement` assumes for every template.
+    leaf_hands : (NL, 2, 2) float32, optional
+        Left/right hand centre of each leaf's template at the reference placement
+        (:func:`tracker_service.skin.leaf_hand_points`); empty: no skin cue.
     """
 
     tree: TemplateTree
@@ -91,6 +95,7 @@ class FilterDB:
     sigma_part: NDArray[np.float32]
     level_column: tuple[NDArray[np.float64], ...] = ()
     ref_column: float = float("nan")
+    leaf_hands: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 2, 2), np.float32))
 
     @property
     def n_leaves(self) -> int:
@@ -144,6 +149,16 @@ class FilterParams:
         Consecutive misses that trigger re-initialisation.
     confidence_scale : float
         Distance at which the reported confidence ``exp(-d^2 / (2 c^2))`` is 0.61.
+    skin_weight : float
+        Weight of the skin cue (:func:`tracker_service.skin.hand_cost`) added to eq. 6's negative
+        log likelihood from level ``skin_from_level`` on; 0 disables it.
+    skin_sigma_px, skin_cap_px, skin_hidden_cost : float
+        Hand-to-skin distance scale and cap (full-resolution pixels), cost of a hidden hand.
+    skin_min_visible : float
+        A template's hand counts as visible above this visible fraction of the hand part.
+    skin_max_fraction : float
+        The cue is off for frames whose silhouette is more than this fraction skin (a skin-coloured
+        shirt).
     """
 
     sigma: tuple[float, ...] = (0.01, 0.008, 0.006)
@@ -165,6 +180,13 @@ class FilterParams:
     lost_distance: float = 0.15
     lost_frames: int = 6
     confidence_scale: float = 0.05
+    skin_weight: float = 2.0
+    skin_from_level: int = 1
+    skin_sigma_px: float = 4.0
+    skin_cap_px: float = 16.0
+    skin_hidden_cost: float = 1.0
+    skin_min_visible: float = 0.25
+    skin_max_fraction: float = 0.45
 
 
 @dataclass(frozen=True)
@@ -343,8 +365,24 @@ def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: 
     return out
 
 
+def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArray[np.float64],
+               skin: SkinObservation | None, params: FilterParams) -> NDArray[np.float64] | float:
+    """Skin-cue cost (:func:`tracker_service.skin.hand_cost`) of nodes at placements ``(n, G, 3)``;
+    a node above the leaves is represented by the leaf holding its prototype template."""
+    if (skin is None or params.skin_weight <= 0 or level < params.skin_from_level or not len(db.leaf_hands)
+            or skin.fraction > params.skin_max_fraction):
+        return 0.0
+    tree = db.tree
+    leaves = nodes if level == tree.n_levels - 1 else tree.template_leaf[tree.node_template[level][nodes]]
+    vis = db.leaf_visible[leaves][:, list(HAND_PARTS)] > params.skin_min_visible
+    c = hand_cost(skin.distance, db.leaf_hands[leaves], vis, places, db.center, params.skin_sigma_px,
+                  params.skin_cap_px, params.skin_hidden_cost)
+    return params.skin_weight * c
+
+
 def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
-         observed_placement: NDArray[np.float64] | None = None) -> tuple[FilterState, Estimate]:
+         observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None
+         ) -> tuple[FilterState, Estimate]:
     """One frame of tree-based filtering.
 
     Parameters
@@ -357,6 +395,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     observed_placement : (3,) float, optional
         Placement measured directly from the silhouette (feet line and body centre); blended into
         the prediction, and used alone after (re-)initialisation.
+    skin : SkinObservation, optional
+        The frame's skin evidence (:func:`tracker_service.skin.observe_skin`): where the hands may be.
 
     Returns
     -------
@@ -388,6 +428,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         evals.append(d.size)
         node_pred = _node_predictions(db, lvl, nodes, pred, w_obs)
         total = 0.5 * (d / params.sigma[lvl]) ** 2 + _placement_cost(places, node_pred[:, None], params)  # eq. 6
+        total = total + _skin_cost(db, lvl, nodes, places, skin, params)
         best = np.argmin(total, axis=1)
         rows = np.arange(len(nodes))
         cost = total[rows, best]
@@ -418,6 +459,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     evals[-1] += d_ref.size
     top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs)
     total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _placement_cost(places, top_pred[:, None], params)
+    total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
     best = np.argmin(total, axis=1)
     rows = np.arange(len(top))
     lp = np.log(np.maximum(post[top], 1e-300)) + cost[top] - total[rows, best]

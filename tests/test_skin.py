@@ -1,0 +1,135 @@
+"""Skin cue: colour locus, distance map, template hand points, hand cost, and its use by the filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from protocol import fk
+from protocol.skeleton import PARTS, rest_pose
+from tracker_service.body_models import body_model
+from tracker_service.camera import default_camera
+from tracker_service.silhouette_render import render_labels_with_areas
+from tracker_service.skin import SkinModel, hand_cost, leaf_hand_points, observe_skin, skin_mask
+
+SKIN_RGB = [(241, 204, 177), (224, 172, 138), (198, 134, 96), (141, 85, 54), (92, 58, 40)]
+FABRIC_RGB = [(74, 115, 128), (90, 189, 85), (140, 52, 113), (48, 50, 85), (230, 230, 230), (20, 20, 20),
+              (113, 44, 76)]
+
+
+def _patches(colours: list[tuple[int, int, int]]) -> np.ndarray:
+    img = np.zeros((10, 10 * len(colours), 3), np.uint8)
+    for i, (r, g, b) in enumerate(colours):
+        img[:, 10 * i: 10 * i + 10] = (b, g, r)  # BGR
+    return img
+
+
+def test_skin_tones_are_skin_and_fabrics_are_not() -> None:
+    skin = _patches(SKIN_RGB)
+    fabric = _patches(FABRIC_RGB)
+    assert skin_mask(skin, np.ones(skin.shape[:2], bool)).all()
+    assert not skin_mask(fabric, np.ones(fabric.shape[:2], bool)).any()
+
+
+def test_skin_needs_the_silhouette_and_light() -> None:
+    img = _patches(SKIN_RGB[:1])
+    assert not skin_mask(img, np.zeros(img.shape[:2], bool)).any()
+    dark = (img // 40).astype(np.uint8)  # same chromaticity, too dark to trust
+    assert not skin_mask(dark, np.ones(img.shape[:2], bool)).any()
+    strict = SkinModel(max_mahalanobis=0.1)
+    assert not skin_mask(_patches(SKIN_RGB[3:4]), np.ones((10, 10), bool), strict).any()
+
+
+def test_distance_map_and_fraction() -> None:
+    img = np.zeros((40, 50, 3), np.uint8)
+    img[20, 10] = (131, 163, 212)  # one skin pixel (BGR)
+    sil = np.zeros((40, 50), bool)
+    sil[10:30, 5:45] = True
+    obs = observe_skin(img, sil)
+    assert obs.mask.sum() == 1 and obs.distance[20, 10] == 0
+    assert obs.distance[20, 40] == pytest.approx(30.0, abs=0.5)
+    assert obs.distance[24, 13] == pytest.approx(5.0, abs=0.3)
+    assert obs.fraction == pytest.approx(1 / sil.sum())
+    none = observe_skin(np.zeros_like(img), sil)
+    assert none.fraction == 0 and none.distance.min() > 100
+
+
+def test_leaf_hand_points_fall_on_the_rendered_hands() -> None:
+    body = body_model("mMA").body
+    cam = default_camera()
+    poses = rest_pose(3)
+    poses[1, 3:6] = (0.0, 0.8, 0.0)  # turned
+    poses[2, 3:6] = (0.3, 0.0, 0.0)  # leaning
+    pts = leaf_hand_points(poses, body, cam)
+    assert pts.shape == (3, 2, 2) and pts.dtype == np.float32
+    joints = fk(poses, body)
+    for k in range(3):
+        labels, counts, areas = render_labels_with_areas(joints[k], body.capsule_radii, cam)
+        for h, part in enumerate(("l_hand", "r_hand")):
+            if counts[PARTS.index(part)] < 0.5 * areas[PARTS.index(part)]:
+                continue  # hidden hand: nothing to check
+            u, v = np.rint(pts[k, h]).astype(int)
+            window = labels[v - 1: v + 2, u - 1: u + 2]
+            assert (window == PARTS.index(part)).any(), (k, part)
+
+
+def test_hand_cost_placement_hidden_and_outside() -> None:
+    dist = np.full((100, 120), 1e3, np.float32)
+    img = np.zeros((100, 120, 3), np.uint8)
+    img[50, 60] = img[50, 80] = (131, 163, 212)
+    dist = observe_skin(img, np.ones((100, 120), bool)).distance
+    pts = np.array([[[60.0, 50.0], [80.0, 50.0]]], np.float32)
+    vis = np.array([[True, True]])
+    center = (60.0, 50.0)
+    places = np.array([[[0.0, 0.0, 1.0], [3.0, 0.0, 1.0], [0.0, 0.0, 1.5], [500.0, 0.0, 1.0]]])
+    c = hand_cost(dist, pts, vis, places, center, sigma_px=2.0, cap_px=8.0, hidden_cost=0.7)
+    assert c.shape == (1, 4)
+    assert c[0, 0] == pytest.approx(0.0)
+    assert c[0, 1] == pytest.approx(2 * 0.5 * (3.0 / 2.0) ** 2, rel=0.05)  # both hands 3 px off
+    # scaling about the left hand keeps it on skin, moves the right one 10 px (capped at 8)
+    assert c[0, 2] == pytest.approx(0.5 * (8.0 / 2.0) ** 2, rel=0.01)
+    assert c[0, 3] == pytest.approx(2 * 0.5 * (8.0 / 2.0) ** 2)  # off the image: capped
+    hidden = hand_cost(dist, pts, np.array([[True, False]]), places[:, :2], center, 2.0, 8.0, 0.7)
+    assert hidden[0, 0] == pytest.approx(0.7)
+
+
+def test_filter_prefers_the_leaf_whose_hands_are_on_skin(small_db) -> None:  # type: ignore[no-untyped-def]
+    """Two leaves with near-identical silhouettes: the skin evidence decides between them."""
+    from dataclasses import replace
+
+    from tracker_service.features import preprocess
+    from tracker_service.silhouette_distance import runs_to_mask
+    from tracker_service.skin import HAND_PARTS
+    from tracker_service.tree_filter import FilterParams, initial_state, step
+
+    db = small_db[0]
+    cam = default_camera()
+    runs = db.level_runs[-1]
+    vis = (db.leaf_visible[:, list(HAND_PARTS)] > 0.25).all(axis=1) & db.leaf_facing
+    # a leaf with both hands visible, and the leaf with the most similar silhouette whose hands differ
+    masks = {i: runs_to_mask(runs.runs(i), (cam.height, cam.width)) for i in np.flatnonzero(vis)[:300]}
+    ids = list(masks)
+    best = None
+    for a in ids[:60]:
+        for b in ids:
+            if a == b:
+                continue
+            sep = np.linalg.norm(db.leaf_hands[a] - db.leaf_hands[b], axis=1).min()
+            if sep < 12:
+                continue
+            d = np.count_nonzero(masks[a] ^ masks[b])
+            if best is None or d < best[0]:
+                best = (d, a, b)
+    assert best is not None
+    _, a, b = best
+    sil = masks[a] | masks[b]
+    feats = preprocess(sil, "xor")
+    params = replace(FilterParams(), keep_rel=0.0, max_keep=(10**6, 10**6), skin_weight=5.0)
+    for target in (a, b):
+        img = np.zeros((cam.height, cam.width, 3), np.uint8)
+        for u, v in np.rint(db.leaf_hands[target]).astype(int):
+            img[v - 2: v + 3, u - 2: u + 3] = (131, 163, 212)
+        skin = observe_skin(img, sil)
+        _, est = step(initial_state(), db, feats, replace(params, refine=len(db.leaf_poses)), None, skin)
+        hands = db.leaf_hands[est.leaf]
+        assert np.linalg.norm(hands - db.leaf_hands[target], axis=1).max() < 6.0, (target, est.leaf)

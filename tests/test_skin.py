@@ -10,7 +10,15 @@ from protocol.skeleton import PARTS, rest_pose
 from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
 from tracker_service.silhouette_render import render_labels_with_areas
-from tracker_service.skin import SkinModel, hand_cost, leaf_hand_points, observe_skin, skin_mask
+from tracker_service.skin import (
+    SkinModel,
+    cover_cost,
+    hand_cost,
+    hand_points,
+    leaf_joint_points,
+    observe_skin,
+    skin_mask,
+)
 
 SKIN_RGB = [(241, 204, 177), (224, 172, 138), (198, 134, 96), (141, 85, 54), (92, 58, 40)]
 FABRIC_RGB = [(74, 115, 128), (90, 189, 85), (140, 52, 113), (48, 50, 85), (230, 230, 230), (20, 20, 20),
@@ -60,7 +68,7 @@ def test_leaf_hand_points_fall_on_the_rendered_hands() -> None:
     poses = rest_pose(3)
     poses[1, 3:6] = (0.0, 0.8, 0.0)  # turned
     poses[2, 3:6] = (0.3, 0.0, 0.0)  # leaning
-    pts = leaf_hand_points(poses, body, cam)
+    pts = hand_points(leaf_joint_points(poses, body, cam))
     assert pts.shape == (3, 2, 2) and pts.dtype == np.float32
     joints = fk(poses, body)
     for k in range(3):
@@ -114,7 +122,7 @@ def test_filter_prefers_the_leaf_whose_hands_are_on_skin(small_db) -> None:  # t
         for b in ids:
             if a == b:
                 continue
-            sep = np.linalg.norm(db.leaf_hands[a] - db.leaf_hands[b], axis=1).min()
+            sep = np.linalg.norm(hand_points(db.leaf_points)[a] - hand_points(db.leaf_points)[b], axis=1).min()
             if sep < 12:
                 continue
             d = np.count_nonzero(masks[a] ^ masks[b])
@@ -127,9 +135,48 @@ def test_filter_prefers_the_leaf_whose_hands_are_on_skin(small_db) -> None:  # t
     params = replace(FilterParams(), keep_rel=0.0, max_keep=(10**6, 10**6), skin_weight=5.0)
     for target in (a, b):
         img = np.zeros((cam.height, cam.width, 3), np.uint8)
-        for u, v in np.rint(db.leaf_hands[target]).astype(int):
+        for u, v in np.rint(hand_points(db.leaf_points)[target]).astype(int):
             img[v - 2: v + 3, u - 2: u + 3] = (131, 163, 212)
         skin = observe_skin(img, sil)
         _, est = step(initial_state(), db, feats, replace(params, refine=len(db.leaf_poses)), None, skin)
-        hands = db.leaf_hands[est.leaf]
-        assert np.linalg.norm(hands - db.leaf_hands[target], axis=1).max() < 6.0, (target, est.leaf)
+        hands = hand_points(db.leaf_points)[est.leaf]
+        assert np.linalg.norm(hands - hand_points(db.leaf_points)[target], axis=1).max() < 6.0, (target, est.leaf)
+
+
+def test_cover_cost_counts_skin_no_limb_explains() -> None:
+    from protocol.skeleton import JOINT_INDEX, N_JOINTS
+
+    pts = np.full((1, N_JOINTS, 2), 10.0, np.float32)  # every joint at (10, 10) ...
+    pts[0, JOINT_INDEX["l_wrist"]] = (10.0, 50.0)  # ... but the left wrist: the forearm is (10, 10)-(10, 50)
+    places = np.array([[[0.0, 0.0, 1.0], [20.0, 0.0, 1.0]]])
+    on = np.array([[10.0, 30.0], [12.0, 45.0]])  # on the forearm (within the 6 px radius)
+    off = np.array([[10.0, 30.0], [30.0, 30.0]])  # the second one 20 px to the side
+    c_on = cover_cost(on, pts, places, (0.0, 0.0), radius_px=6.0, sigma_px=4.0, cap_px=16.0)
+    c_off = cover_cost(off, pts, places, (0.0, 0.0), radius_px=6.0, sigma_px=4.0, cap_px=16.0)
+    assert c_on[0, 0] == pytest.approx(0.0)
+    assert c_off[0, 0] == pytest.approx(2.0 * 0.5 * 0.5 * (14.0 / 4.0) ** 2)  # mean over 2 samples, x2
+    assert c_off[0, 1] == pytest.approx(2.0 * 0.5 * 0.5 * (14.0 / 4.0) ** 2)  # moved 20 px: the other one is off
+    assert cover_cost(np.zeros((0, 2)), pts, places, (0.0, 0.0), 6.0, 4.0, 16.0).shape == (1, 2)
+
+
+def test_skin_cost_kernel_matches_the_numpy_references() -> None:
+    from tracker_service.skin import SkinObservation, skin_cost
+
+    rng = np.random.default_rng(3)
+    body = body_model("wTY").body
+    cam = default_camera()
+    poses = rest_pose(5)
+    poses[:, 3:] += rng.normal(0, 0.4, (5, poses.shape[1] - 3))
+    pts = leaf_joint_points(poses, body, cam)
+    pts[4, 3] = np.nan  # a joint behind the camera
+    img = np.zeros((cam.height, cam.width, 3), np.uint8)
+    img[rng.integers(0, cam.height, 40), rng.integers(0, cam.width, 40)] = (131, 163, 212)
+    obs = observe_skin(img, np.ones((cam.height, cam.width), bool))
+    assert isinstance(obs, SkinObservation) and len(obs.samples) == 40
+    vis = rng.random((5, 2)) > 0.3
+    places = np.stack([rng.normal(0, 10, (5, 7)), rng.normal(0, 10, (5, 7)), rng.uniform(0.8, 1.2, (5, 7))], -1)
+    center = (cam.cx, cam.cy)
+    ref = hand_cost(obs.distance, hand_points(pts), vis, places, center, 4.0, 16.0, 1.0) + 0.7 * cover_cost(
+        obs.samples, pts, places, center, 6.0, 4.0, 16.0)
+    got = skin_cost(obs, pts, vis, places, center, 4.0, 16.0, 1.0, 0.7, 6.0)
+    np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6)  # float32 joints

@@ -500,3 +500,78 @@ def lower_column_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64], lower_f
                 break
             cum += run
         out[t] = 0.5 * (v1 + v2)
+
+
+@njit(cache=True, nogil=True)
+def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64], points: NDArray[np.float32],
+                     segments: NDArray[np.int64], hands: NDArray[np.int64], visible: NDArray[np.bool_],
+                     places: NDArray[np.float64], cx: float, cy: float, sigma: float, cap: float, hidden: float,
+                     cover_weight: float, radius: float, out: NDArray[np.float64]) -> None:
+    """Skin cue of templates at placements: hand term plus ``cover_weight`` times the cover term
+    (:func:`tracker_service.skin.hand_cost` + :func:`tracker_service.skin.cover_cost`, their
+    numpy references).
+
+    Parameters
+    ----------
+    distance : (H, W) float32
+        Distance to the nearest skin pixel.
+    samples : (K, 2) float64
+        Skin pixels ``(u, v)``.
+    points : (n, J, 2) float32
+        Joints of each template at the reference placement.
+    segments : (S, 2) int64
+        Joint pairs of the skin-bearing bones.
+    hands : (2, 2) int64
+        ``(wrist, hand_tip)`` joints of the left and right hand.
+    visible : (n, 2) bool
+        Whether each template shows each hand.
+    places : (n, G, 3) float64
+        Placements ``(dx, dy, s)``.
+    cx, cy, sigma, cap, hidden, cover_weight, radius : float
+    out : (n, G) float64
+        Written.
+    """
+    h, w = distance.shape
+    n, g = places.shape[0], places.shape[1]
+    nj = points.shape[1]
+    k = samples.shape[0]
+    u = np.empty(nj)
+    v = np.empty(nj)
+    for i in range(n):
+        for j in range(g):
+            dx, dy, s = places[i, j, 0], places[i, j, 1], places[i, j, 2]
+            for q in range(nj):
+                u[q] = cx + dx + s * (points[i, q, 0] - cx)
+                v[q] = cy + dy + s * (points[i, q, 1] - cy)
+            acc = 0.0
+            for hh in range(2):
+                if not visible[i, hh]:
+                    acc += hidden
+                    continue
+                hu = 0.5 * (u[hands[hh, 0]] + u[hands[hh, 1]])
+                hv = 0.5 * (v[hands[hh, 0]] + v[hands[hh, 1]])
+                d = cap
+                if np.isfinite(hu) and np.isfinite(hv):
+                    iu = int(np.rint(hu))
+                    iv = int(np.rint(hv))
+                    if 0 <= iu < w and 0 <= iv < h:
+                        d = min(float(distance[iv, iu]), cap)
+                acc += 0.5 * (d / sigma) ** 2
+            if cover_weight > 0.0 and k > 0:
+                cov = 0.0
+                for m in range(k):
+                    best = np.inf
+                    for t in range(segments.shape[0]):
+                        ax, ay = u[segments[t, 0]], v[segments[t, 0]]
+                        bx, by = u[segments[t, 1]] - ax, v[segments[t, 1]] - ay
+                        px, py = samples[m, 0] - ax, samples[m, 1] - ay
+                        ll = max(bx * bx + by * by, 1e-9)
+                        tt = min(max((px * bx + py * by) / ll, 0.0), 1.0)
+                        ex, ey = px - tt * bx, py - tt * by
+                        d2 = ex * ex + ey * ey
+                        if d2 < best:
+                            best = d2
+                    e = cap if not np.isfinite(best) else min(max(np.sqrt(best) - radius, 0.0), cap)
+                    cov += 0.5 * (e / sigma) ** 2
+                acc += cover_weight * 2.0 * cov / k
+            out[i, j] = acc

@@ -32,7 +32,7 @@ from .placement import placement_columns
 from .pose_pruning import prune_poses
 from .silhouette_distance import RunSet
 from .silhouette_render import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
-from .skin import leaf_hand_points
+from .skin import leaf_joint_points
 from .template_tree import PackedMaskDistance, build_tree, pack_masks
 from .tree_filter import FilterDB
 
@@ -316,7 +316,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         trans_idx=dst.astype(np.int64), trans_p=trans_p,
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
         level_column=level_column, ref_column=ref_column,
-        leaf_hands=leaf_hand_points(leaf_poses, body, cam),
+        leaf_points=leaf_joint_points(leaf_poses, body, cam),
     )
     stats["total_s"] = time.perf_counter() - t0
     log.info("database: %s", stats)

@@ -29,15 +29,20 @@ from numpy.typing import NDArray
 from protocol import fk
 from protocol.skeleton import JOINT_INDEX, PARTS, Body
 
+from ._kernels import skin_cost_kernel
 from .camera import Camera
 
 __all__ = [
     "HAND_PARTS",
+    "SKIN_SEGMENTS",
     "SkinModel",
     "SkinObservation",
+    "cover_cost",
     "hand_cost",
-    "leaf_hand_points",
+    "hand_points",
+    "leaf_joint_points",
     "observe_skin",
+    "skin_cost",
     "skin_mask",
 ]
 
@@ -45,6 +50,14 @@ __all__ = [
 HAND_PARTS: tuple[int, int] = (PARTS.index("l_hand"), PARTS.index("r_hand"))
 _HAND_JOINTS = ((JOINT_INDEX["l_wrist"], JOINT_INDEX["l_hand_tip"]),
                 (JOINT_INDEX["r_wrist"], JOINT_INDEX["r_hand_tip"]))
+#: Bones along which a person may show skin (arms, neck and head, legs under a skirt): the skin a
+#: template cannot explain is the skin farther than a limb's width from all of them.
+SKIN_SEGMENTS: tuple[tuple[int, int], ...] = tuple(
+    (JOINT_INDEX[a], JOINT_INDEX[b]) for a, b in (
+        ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"), ("l_wrist", "l_hand_tip"),
+        ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"), ("r_wrist", "r_hand_tip"),
+        ("neck", "head_top"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"), ("r_hip", "r_knee"),
+        ("r_knee", "r_ankle")))
 
 
 @dataclass(frozen=True)
@@ -83,6 +96,8 @@ class SkinObservation:
     ----------
     mask : (H, W) bool
         Skin pixels inside the (dilated) silhouette.
+    samples : (K, 2) float64
+        ``(u, v)`` of up to ``max_samples`` skin pixels spread over the mask.
     distance : (H, W) float32
         Distance (pixels) of every pixel to the nearest skin pixel; a large constant when the frame
         has no skin at all.
@@ -92,6 +107,7 @@ class SkinObservation:
     """
 
     mask: NDArray[np.bool_]
+    samples: NDArray[np.float64]
     distance: NDArray[np.float32]
     fraction: float
 
@@ -138,7 +154,7 @@ def skin_mask(image: NDArray[np.uint8], silhouette: NDArray[np.bool_], model: Sk
 
 
 def observe_skin(image: NDArray[np.uint8], silhouette: NDArray[np.bool_], model: SkinModel = SkinModel(),
-                 reach_px: int = 40) -> SkinObservation:
+                 reach_px: int = 40, max_samples: int = 64) -> SkinObservation:
     """Skin mask, its distance transform and skin fraction of one frame.
 
     Parameters
@@ -149,6 +165,8 @@ def observe_skin(image: NDArray[np.uint8], silhouette: NDArray[np.bool_], model:
     reach_px : int
         Distances are exact up to this many pixels from the skin; beyond, at least ``reach_px``
         (the distance transform runs on the person's box grown by ``reach_px`` only).
+    max_samples : int
+        Skin pixels kept (evenly spaced in raster order) for :func:`cover_cost`.
 
     Returns
     -------
@@ -160,12 +178,16 @@ def observe_skin(image: NDArray[np.uint8], silhouette: NDArray[np.bool_], model:
     if mask.any():
         ys, xs = _bbox(mask, reach_px)
         dist[ys, xs] = cv2.distanceTransform((~mask[ys, xs]).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return SkinObservation(mask, dist, float(mask.sum()) / max(n_fg, 1))
+    idx = np.flatnonzero(mask)
+    if len(idx) > max_samples:
+        idx = idx[np.linspace(0, len(idx) - 1, max_samples).astype(np.int64)]
+    samples = np.stack([idx % mask.shape[1], idx // mask.shape[1]], axis=1).astype(np.float64)
+    return SkinObservation(mask, samples, dist, float(mask.sum()) / max(n_fg, 1))
 
 
-def leaf_hand_points(leaf_poses: NDArray[np.floating], body: Body, camera: Camera, chunk: int = 8192
-                     ) -> NDArray[np.float32]:
-    """Image position of each leaf template's hand centres at the reference placement.
+def leaf_joint_points(leaf_poses: NDArray[np.floating], body: Body, camera: Camera, chunk: int = 8192
+                      ) -> NDArray[np.float32]:
+    """Image position of every joint of each leaf template at the reference placement.
 
     Parameters
     ----------
@@ -180,15 +202,68 @@ def leaf_hand_points(leaf_poses: NDArray[np.floating], body: Body, camera: Camer
 
     Returns
     -------
-    (NL, 2, 2) float32
-        ``(u, v)`` of the left and right hand centre (mid-point of wrist and finger tips).
+    (NL, J, 2) float32
+        ``(u, v)`` of every joint.
     """
-    out = np.empty((len(leaf_poses), 2, 2), np.float32)
+    out = np.empty((len(leaf_poses), len(JOINT_INDEX), 2), np.float32)
     for i in range(0, len(leaf_poses), chunk):
-        j = fk(np.asarray(leaf_poses[i: i + chunk], np.float64), body)
-        for h, (w, t) in enumerate(_HAND_JOINTS):
-            out[i: i + chunk, h] = camera.project(0.5 * (j[:, w] + j[:, t]))
+        out[i: i + chunk] = camera.project(fk(np.asarray(leaf_poses[i: i + chunk], np.float64), body))
     return out
+
+
+def hand_points(joint_points: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``(..., 2, 2)`` left/right hand centres (mid-point of wrist and finger tips) from
+    ``(..., J, 2)`` joint positions."""
+    return np.stack([0.5 * (joint_points[..., w, :] + joint_points[..., t, :]) for w, t in _HAND_JOINTS], axis=-2)
+
+
+def _transform(points: NDArray[np.float32], places: NDArray[np.float64], center: tuple[float, float]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(n, K, 2)`` reference points moved by placements ``(n, G, 3)``: ``u, v`` each ``(n, G, K)``."""
+    s = places[..., 2, None]
+    u = center[0] + places[..., 0, None] + s * (points[:, None, :, 0] - center[0])
+    v = center[1] + places[..., 1, None] + s * (points[:, None, :, 1] - center[1])
+    return u, v
+
+
+def cover_cost(samples: NDArray[np.float64], joint_points: NDArray[np.float32], places: NDArray[np.float64],
+               center: tuple[float, float], radius_px: float, sigma_px: float, cap_px: float) -> NDArray[np.float64]:
+    """Cost of the observed skin a template cannot explain (the reverse of :func:`hand_cost`).
+
+    Every skin sample farther than ``radius_px`` from all of the template's :data:`SKIN_SEGMENTS`
+    costs ``0.5 * min(d - radius, cap)^2 / sigma^2``; the cost is the mean over samples times two
+    (on the scale of two hands). Hands held on the chest are seen as skin where a template with
+    hanging arms has no limb.
+
+    Parameters
+    ----------
+    samples : (K, 2) float64
+        Skin pixels (:attr:`SkinObservation.samples`).
+    joint_points : (n, J, 2) float32
+        Joints of each template at the reference placement (:func:`leaf_joint_points`).
+    places : (n, G, 3) float64
+    center : (float, float)
+    radius_px, sigma_px, cap_px : float
+
+    Returns
+    -------
+    (n, G) float64
+    """
+    n, g = places.shape[:2]
+    if len(samples) == 0:
+        return np.zeros((n, g))
+    seg = np.array(SKIN_SEGMENTS)
+    u, v = _transform(joint_points, places, center)  # (n, G, J)
+    ax, ay = u[..., seg[:, 0]], v[..., seg[:, 0]]  # (n, G, S)
+    bx, by = u[..., seg[:, 1]] - ax, v[..., seg[:, 1]] - ay
+    px = samples[:, 0][None, None, :, None] - ax[:, :, None, :]  # (n, G, K, S)
+    py = samples[:, 1][None, None, :, None] - ay[:, :, None, :]
+    ll = np.maximum(bx * bx + by * by, 1e-9)[:, :, None, :]
+    t = np.clip((px * bx[:, :, None, :] + py * by[:, :, None, :]) / ll, 0.0, 1.0)
+    dx, dy = px - t * bx[:, :, None, :], py - t * by[:, :, None, :]
+    d = np.sqrt(np.where(np.isnan(dx + dy), np.inf, dx * dx + dy * dy).min(axis=-1))  # (n, G, K); unknown bones skipped
+    c = 0.5 * (np.clip(d - radius_px, 0.0, cap_px) / sigma_px) ** 2
+    return np.asarray(2.0 * c.mean(axis=-1), np.float64)
 
 
 def hand_cost(distance: NDArray[np.float32], points: NDArray[np.float32], visible: NDArray[np.bool_],
@@ -201,7 +276,7 @@ def hand_cost(distance: NDArray[np.float32], points: NDArray[np.float32], visibl
     distance : (H, W) float32
         :attr:`SkinObservation.distance`.
     points : (n, 2, 2) float32
-        Hand centres of each template at the reference placement (:func:`leaf_hand_points`).
+        Hand centres of each template at the reference placement (:func:`hand_points`).
     visible : (n, 2) bool
         Whether each hand is visible in each template.
     places : (n, G, 3) float64
@@ -218,9 +293,7 @@ def hand_cost(distance: NDArray[np.float32], points: NDArray[np.float32], visibl
     (n, G) float64
     """
     h, w = distance.shape
-    s = places[..., 2, None]  # (n, G, 1)
-    u = center[0] + places[..., 0, None] + s * (points[:, None, :, 0] - center[0])  # (n, G, 2)
-    v = center[1] + places[..., 1, None] + s * (points[:, None, :, 1] - center[1])
+    u, v = _transform(points, places, center)  # (n, G, 2)
     iu = np.rint(np.nan_to_num(u, nan=-1.0)).astype(np.int64)
     iv = np.rint(np.nan_to_num(v, nan=-1.0)).astype(np.int64)
     inside = (iu >= 0) & (iu < w) & (iv >= 0) & (iv < h)
@@ -228,3 +301,35 @@ def hand_cost(distance: NDArray[np.float32], points: NDArray[np.float32], visibl
     c = 0.5 * (np.minimum(d, cap_px) / sigma_px) ** 2
     c = np.where(visible[:, None, :], c, hidden_cost)
     return np.asarray(c.sum(axis=-1), np.float64)
+
+
+_SEGMENTS = np.array(SKIN_SEGMENTS, np.int64)
+_HANDS = np.array(_HAND_JOINTS, np.int64)
+
+
+def skin_cost(obs: SkinObservation, joint_points: NDArray[np.float32], visible: NDArray[np.bool_],
+              places: NDArray[np.float64], center: tuple[float, float], sigma_px: float, cap_px: float,
+              hidden_cost: float, cover_weight: float, radius_px: float) -> NDArray[np.float64]:
+    """``hand_cost + cover_weight * cover_cost`` in one numba pass (:func:`hand_cost` and
+    :func:`cover_cost` are its references).
+
+    Parameters
+    ----------
+    obs : SkinObservation
+    joint_points : (n, J, 2) float32
+    visible : (n, 2) bool
+    places : (n, G, 3) float64
+    center : (float, float)
+    sigma_px, cap_px, hidden_cost, cover_weight, radius_px : float
+
+    Returns
+    -------
+    (n, G) float64
+    """
+    out = np.empty(places.shape[:2])
+    skin_cost_kernel(obs.distance, np.ascontiguousarray(obs.samples, np.float64),
+                     np.ascontiguousarray(joint_points, np.float32), _SEGMENTS, _HANDS,
+                     np.ascontiguousarray(visible), np.ascontiguousarray(places, np.float64),
+                     float(center[0]), float(center[1]), float(sigma_px), float(cap_px), float(hidden_cost),
+                     float(cover_weight), float(radius_px), out)
+    return out

@@ -22,7 +22,7 @@ from protocol.skeleton import Body
 from .camera import Camera
 from .placement import placement_columns
 from .silhouette_distance import RunSet
-from .skin import leaf_hand_points
+from .skin import leaf_joint_points
 from .template_tree import TemplateTree
 from .tree_filter import FilterDB
 
@@ -188,7 +188,7 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
                       **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
                                                 "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")},
                       level_column=level_column, ref_column=ref_column,
-                      leaf_hands=leaf_hand_points(arrays["leaf_poses"], body, cam))
+                      leaf_points=leaf_joint_points(arrays["leaf_poses"], body, cam))
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:

@@ -29,11 +29,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.rotations import matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
-from protocol.skeleton import N_PARTS, POSE_SIZE
+from protocol.skeleton import N_JOINTS, N_PARTS, POSE_SIZE
 
 from .features import LevelFeatures
 from .silhouette_distance import RunSet, evaluate_templates
-from .skin import HAND_PARTS, SkinObservation, hand_cost
+from .skin import HAND_PARTS, SkinObservation, skin_cost
 from .template_tree import TemplateTree
 
 __all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "step"]
@@ -74,9 +74,9 @@ class FilterDB:
         of the observed shift.
     ref_column : float
         The column :func:`tracker_service.placement.observed_placement` assumes for every template.
-    leaf_hands : (NL, 2, 2) float32, optional
-        Left/right hand centre of each leaf's template at the reference placement
-        (:func:`tracker_service.skin.leaf_hand_points`); empty: no skin cue.
+    leaf_points : (NL, J, 2) float32, optional
+        Image position of every joint of each leaf's template at the reference placement
+        (:func:`tracker_service.skin.leaf_joint_points`); empty: no skin cue.
     """
 
     tree: TemplateTree
@@ -95,7 +95,7 @@ class FilterDB:
     sigma_part: NDArray[np.float32]
     level_column: tuple[NDArray[np.float64], ...] = ()
     ref_column: float = float("nan")
-    leaf_hands: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 2, 2), np.float32))
+    leaf_points: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2), np.float32))
 
     @property
     def n_leaves(self) -> int:
@@ -154,6 +154,11 @@ class FilterParams:
         log likelihood from level ``skin_from_level`` on; 0 disables it.
     skin_sigma_px, skin_cap_px, skin_hidden_cost : float
         Hand-to-skin distance scale and cap (full-resolution pixels), cost of a hidden hand.
+    skin_cover_weight, skin_cover_radius_px : float
+        Weight of the reverse term (:func:`tracker_service.skin.cover_cost`: skin no limb of the
+        template explains) and the limb half-width it allows (full-resolution pixels).
+    skin_cover_from_level : int
+        First level where the reverse term is added (it costs ``K x S`` per evaluation).
     skin_min_visible : float
         A template's hand counts as visible above this visible fraction of the hand part.
     skin_max_fraction : float
@@ -187,6 +192,9 @@ class FilterParams:
     skin_hidden_cost: float = 1.0
     skin_min_visible: float = 0.25
     skin_max_fraction: float = 0.45
+    skin_cover_weight: float = 6.0
+    skin_cover_from_level: int = 2
+    skin_cover_radius_px: float = 6.0
 
 
 @dataclass(frozen=True)
@@ -369,14 +377,15 @@ def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArr
                skin: SkinObservation | None, params: FilterParams) -> NDArray[np.float64] | float:
     """Skin-cue cost (:func:`tracker_service.skin.hand_cost`) of nodes at placements ``(n, G, 3)``;
     a node above the leaves is represented by the leaf holding its prototype template."""
-    if (skin is None or params.skin_weight <= 0 or level < params.skin_from_level or not len(db.leaf_hands)
+    if (skin is None or params.skin_weight <= 0 or level < params.skin_from_level or not len(db.leaf_points)
             or skin.fraction > params.skin_max_fraction):
         return 0.0
     tree = db.tree
     leaves = nodes if level == tree.n_levels - 1 else tree.template_leaf[tree.node_template[level][nodes]]
     vis = db.leaf_visible[leaves][:, list(HAND_PARTS)] > params.skin_min_visible
-    c = hand_cost(skin.distance, db.leaf_hands[leaves], vis, places, db.center, params.skin_sigma_px,
-                  params.skin_cap_px, params.skin_hidden_cost)
+    c = skin_cost(skin, db.leaf_points[leaves], vis, places, db.center, params.skin_sigma_px, params.skin_cap_px,
+                  params.skin_hidden_cost, params.skin_cover_weight if level >= params.skin_cover_from_level else 0.0,
+                  params.skin_cover_radius_px)
     return params.skin_weight * c
 
 

@@ -84,7 +84,7 @@ def run_sequence(m: Motion, loaded: LoadedDatabase, cfg: TrackerConfig, seed: in
         present = 0
         for i in range(scene.n_frames):
             fr = scene.frame(i)
-            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, tcfg)
+            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, tcfg, fr.timestamp)
             if not fr.truth.present:
                 continue
             present += 1

@@ -120,6 +120,10 @@ class RecognizerConfig:
         ``still_max_turn_deg`` or the pelvis travelled more than ``still_max_travel`` body heights
         (``crouch_max_travel`` for a crouch) is part of some other movement (a dance spin, a
         stylised walk) and is dropped.
+    still_depth_weight : float
+        Weight of the depth axis (world ``z``, the camera's viewing direction) in that travel: a
+        single camera measures depth several times less precisely than sideways motion (tracked
+        game scripts: a standing player's depth wanders by 14 cm while the arms are up).
     enabled : tuple of Gesture
         Gestures to look for.
     """
@@ -136,6 +140,7 @@ class RecognizerConfig:
     still_max_turn_deg: float = 30.0
     still_max_travel: float = 0.15
     crouch_max_travel: float = 0.25
+    still_depth_weight: float = 0.5
     enabled: tuple[Gesture, ...] = tuple(Gesture)
 
 
@@ -162,15 +167,16 @@ class _MotionHistory:
         self._buf[self._n] = (t, xz[0], xz[1], yaw)
         self._n += 1
 
-    def motion(self, t0: float, t1: float) -> tuple[float, float]:
-        """Facing range (radians) and largest pelvis distance from its position at ``t0`` (metres)
-        over ``[t0, t1]``; zeros if no sample falls in the interval."""
+    def motion(self, t0: float, t1: float, depth_weight: float = 1.0) -> tuple[float, float]:
+        """Facing range (radians) and largest pelvis distance from its position at ``t0`` (metres,
+        the depth axis ``z`` scaled by ``depth_weight``) over ``[t0, t1]``; zeros if no sample
+        falls in the interval."""
         b = self._buf[: self._n]
         i0, i1 = int(np.searchsorted(b[:, 0], t0)), int(np.searchsorted(b[:, 0], t1, side="right"))
         if i1 <= i0:
             return 0.0, 0.0
         w = b[i0:i1]
-        travel = float(np.hypot(w[:, 1] - w[0, 1], w[:, 2] - w[0, 2]).max())
+        travel = float(np.hypot(w[:, 1] - w[0, 1], depth_weight * (w[:, 2] - w[0, 2])).max())
         return float(w[:, 3].max() - w[:, 3].min()), travel
 
 
@@ -276,7 +282,7 @@ class GestureRecognizer:
         cfg = self.config
         if gesture == Gesture.SIDE_STEP:
             return True
-        turn, travel = self._history.motion(cand.start_s - 0.2, f.t)
+        turn, travel = self._history.motion(cand.start_s - 0.2, f.t, cfg.still_depth_weight)
         limit = cfg.crouch_max_travel if gesture == Gesture.CROUCH else cfg.still_max_travel
         return turn <= math.radians(cfg.still_max_turn_deg) and travel <= limit * f.height
 

@@ -102,7 +102,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         streak = 0
         for i in range(n):
             fr = scene.frame(i)
-            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg)
+            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
             if not fr.truth.present:
                 continue
             present += 1

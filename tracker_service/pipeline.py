@@ -31,6 +31,7 @@ from .camera import Camera
 from .features import Distance, preprocess
 from .placement import feet_scale, observed_placement, placement_to_root, scaled_placement
 from .skin import SkinModel, observe_skin
+from .smoothing import OneEuroParams, SmoothState, smooth_pose
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
@@ -70,6 +71,11 @@ class TrackerConfig:
     skin : SkinModel or None
         Skin colour locus of the hand cue (:mod:`tracker_service.skin`); None: silhouettes only
         (the paper's observation model).
+    smoothing : OneEuroParams or None
+        One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
+        per-frame estimate.
+    fps : float
+        Frame rate assumed when :func:`process_frame` is given no time stamp.
     """
 
     distance: Distance = "nwxor"
@@ -86,6 +92,8 @@ class TrackerConfig:
     use_mean_pose: bool = False
     depth_from_feet: bool = True
     skin: SkinModel | None = field(default_factory=SkinModel)
+    smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
+    fps: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -102,6 +110,8 @@ class TrackerState:
     statures: tuple[float, ...] = ()
     frames_in_phase: int = 0
     reinits: int = 0
+    clock: float = 0.0
+    smooth: SmoothState | None = None
 
 
 @dataclass(frozen=True)
@@ -151,7 +161,7 @@ def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
 
 
 def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, db_body: Body, camera: Camera,
-                  config: TrackerConfig) -> tuple[TrackerState, FrameResult]:
+                  config: TrackerConfig, timestamp: float | None = None) -> tuple[TrackerState, FrameResult]:
     """Advance the tracker by one camera frame.
 
     Parameters
@@ -165,6 +175,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     camera : Camera
         The database's camera (frame size must match).
     config : TrackerConfig
+    timestamp : float, optional
+        Frame time (s) for the output smoothing; default: the previous one plus ``1 / config.fps``.
 
     Returns
     -------
@@ -174,6 +186,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     t0 = time.perf_counter()
     if frame.ndim != 3 or frame.shape[:2] != (camera.height, camera.width) or frame.dtype != np.uint8:
         raise ValueError(f"frame must be ({camera.height}, {camera.width}, 3) uint8, got {frame.shape} {frame.dtype}")
+    clock = float(timestamp) if timestamp is not None else state.clock + 1.0 / config.fps
+    state = replace(state, clock=clock)
     empty_vis = np.zeros(N_PARTS, np.float32)
     if state.phase == "learning":
         frames = (*state.learning, frame)
@@ -243,10 +257,15 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             # s_feet is the floor-row ratio (the templates' size); the subject is `scale` times it
             place = scaled_placement(np.array([place[0], 0.0, s_feet]), scale, camera)
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)
+    smooth = state.smooth
+    if config.smoothing is not None and phase == "tracking" and not est.reinitialised and not body_changed:
+        smooth, pose = smooth_pose(smooth, clock, pose, config.smoothing)
+    else:
+        smooth = None
     joints = fk(pose, body)
     reinits = state.reinits + int(est.reinitialised)
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
-                    statures=statures, frames_in_phase=frames_in_phase, reinits=reinits)
+                    statures=statures, frames_in_phase=frames_in_phase, reinits=reinits, smooth=smooth)
     t4 = time.perf_counter()
     ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
            "total": (t4 - t0) * 1e3}

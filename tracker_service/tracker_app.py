@@ -141,7 +141,7 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
                     break
                 counters.values["frames_in"] += 1
                 try:
-                    state, res = process_frame(state, frame, loaded.db, loaded.body, loaded.camera, config)
+                    state, res = process_frame(state, frame, loaded.db, loaded.body, loaded.camera, config, ts)
                 except ValueError as exc:  # a frame the pipeline cannot use
                     counters.values["bad_frames"] += 1
                     log.warning("skipping frame %d: %s", counters.values["frames_in"], exc)

@@ -10,11 +10,14 @@ from tracker_service.body_models import body_model
 from tracker_service.body_selection import measured_stature
 from tracker_service.camera import default_camera
 from tracker_service.placement import (
+    feet_in_view,
+    feet_scale,
     lower_body_column,
     observed_placement,
     placement_to_root,
     reference_floor_row,
     scaled_placement,
+    template_bottoms,
     template_columns,
     template_columns_reference,
 )
@@ -106,3 +109,51 @@ def test_measured_stature_of_standing_bodies(spot: tuple[float, float]) -> None:
         # within a pixel of the head and feet rows at that distance (children's feet are shorter)
         tol = 0.03 * float(cam.depth(pose[:3])) / 3.0
         assert measured_stature(mask, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name
+
+
+def test_template_bottoms_at_every_level(small_db) -> None:  # type: ignore[no-untyped-def]
+    db, *_ = small_db
+    shapes = ((60, 80), (120, 160), (240, 320))
+    for lvl, shape in enumerate(shapes):
+        runs = db.level_runs[lvl]
+        sub = RunSet([runs.runs(i) for i in range(min(40, len(runs)))] + [np.zeros((0, 3), np.int16)])
+        got = template_bottoms(sub, db.level_scale[lvl])
+        for i in range(len(sub) - 1):
+            rows = np.flatnonzero(runs_to_mask(sub.runs(i), shape).any(axis=1))
+            assert got[i] == pytest.approx((rows[-1] + 0.5) / db.level_scale[lvl] - 0.5)
+        assert np.isnan(got[-1])
+    assert [len(b) for b in db.level_bottom] == list(db.tree.level_sizes)
+
+
+def test_a_leaping_template_gets_a_larger_predicted_scale(small_db) -> None:  # type: ignore[no-untyped-def]
+    """Its feet are off the floor: the observed feet line must meet its own lowest row."""
+    from tracker_service.tree_filter import _node_predictions
+
+    db, *_ = small_db
+    lvl = db.tree.n_levels - 1
+    b = db.level_bottom[lvl]
+    standing, airborne = int(np.nanargmin(np.abs(b - db.ref_bottom))), int(np.nanargmin(b))
+    assert b[airborne] < db.ref_bottom - 3
+    obs = np.array([0.0, 0.0, 1.1])
+    pred = _node_predictions(db, lvl, np.array([standing, airborne]), obs, 1.0, obs)
+    cy = db.center[1]
+    assert pred[0, 2] == pytest.approx(1.1 * (db.ref_bottom - cy) / (b[standing] - cy), rel=1e-9)
+    assert pred[1, 2] == pytest.approx(1.1 * (db.ref_bottom - cy) / (b[airborne] - cy), rel=1e-9)
+    assert pred[1, 2] > pred[0, 2]
+    # no observation (feet out of view): the motion prediction for every node
+    none = _node_predictions(db, lvl, np.array([standing, airborne]), obs, 0.0, None)
+    np.testing.assert_array_equal(none, np.repeat(obs[None], 2, axis=0))
+
+
+def test_feet_cut_off_by_the_image_border_measure_nothing() -> None:
+    cam = default_camera()
+    body = body_model("mMA").body
+    mask = render_silhouette(fk(standing_pose(body), body), body.capsule_radii, cam)
+    assert feet_in_view(mask) and observed_placement(mask, cam) is not None
+    runs = mask_to_runs(mask)
+    assert feet_scale(mask, runs, cam.cy) == pytest.approx(1.0)
+    close = np.zeros_like(mask)
+    close[40:] = mask[: mask.shape[0] - 40]  # the same person 40 px lower: the feet leave the image
+    assert not feet_in_view(close)
+    assert observed_placement(close, cam) is None
+    assert feet_scale(close, runs, cam.cy) is None

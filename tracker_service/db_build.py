@@ -28,7 +28,7 @@ from protocol.skeleton import JOINT_INDEX, N_PARTS, PARTS, POSE_SIZE, ROT_JOINTS
 
 from .camera import Camera, default_camera
 from .features import LEVEL_SIZES
-from .placement import placement_columns
+from .placement import placement_columns, placement_rows
 from .pose_pruning import prune_poses
 from .silhouette_distance import RunSet
 from .silhouette_render import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
@@ -309,6 +309,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     )
     level_scale = tuple(c.width / cam.width for c in cams)
     level_column, ref_column = placement_columns(level_runs, level_scale, cam)
+    level_bottom, ref_bottom = placement_rows(level_runs, level_scale, cam)
     db = FilterDB(
         tree=tree, level_runs=level_runs, level_scale=level_scale,
         center=(cam.cx, cam.cy), leaf_poses=leaf_poses.astype(np.float32), leaf_visible=vis,
@@ -316,6 +317,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         trans_idx=dst.astype(np.int64), trans_p=trans_p,
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
         level_column=level_column, ref_column=ref_column,
+        level_bottom=level_bottom, ref_bottom=ref_bottom,
         leaf_points=leaf_joint_points(leaf_poses, body, cam),
     )
     stats["total_s"] = time.perf_counter() - t0

@@ -19,13 +19,16 @@ from .silhouette_distance import RunSet, runs_to_mask
 __all__ = [
     "LOWER_FRAC",
     "TOE_AHEAD_M",
+    "feet_in_view",
     "feet_scale",
     "lower_body_column",
     "observed_placement",
     "placement_columns",
+    "placement_rows",
     "placement_to_root",
     "reference_floor_row",
     "scaled_placement",
+    "template_bottoms",
     "template_columns",
     "template_columns_reference",
 ]
@@ -113,6 +116,47 @@ def placement_columns(level_runs: tuple[RunSet, ...], level_scale: tuple[float, 
     return cols, float(camera.project(np.zeros(3))[0])
 
 
+def template_bottoms(runs: RunSet, level_scale: float) -> NDArray[np.float64]:
+    """Lowest row of every template of a run set, in full-resolution pixels (reference placement).
+
+    A template whose feet are off the floor (a leap, a running stride, a raised knee) has its
+    lowest row above :func:`reference_floor_row`; the observed feet line then means a larger
+    scale for it than for a standing template (see :func:`tracker_service.tree_filter.step`).
+
+    Parameters
+    ----------
+    runs : RunSet
+    level_scale : float
+
+    Returns
+    -------
+    (T,) float64
+        Row index; NaN for an empty template.
+    """
+    ptr = np.asarray(runs.ptr, np.int64)
+    rows = np.asarray(runs.data[:, 0], np.float64)
+    out = np.full(len(ptr) - 1, np.nan)
+    full = ptr[1:] > ptr[:-1]
+    if rows.size:
+        out[full] = np.maximum.reduceat(rows, ptr[:-1][full])
+    return (out + 0.5) / level_scale - 0.5
+
+
+def placement_rows(level_runs: tuple[RunSet, ...], level_scale: tuple[float, ...], camera: Camera
+                   ) -> tuple[tuple[NDArray[np.float64], ...], float]:
+    """The ``level_bottom`` and ``ref_bottom`` fields of a :class:`~tracker_service.tree_filter.FilterDB`:
+    each node's lowest template row and the floor row a standing template's lowest row lies on."""
+    rows = tuple(template_bottoms(r, sc) for r, sc in zip(level_runs, level_scale, strict=True))
+    return rows, reference_floor_row(camera)
+
+
+def feet_in_view(mask: NDArray[np.bool_], margin_px: int = 2) -> bool:
+    """Whether the silhouette's lowest row is inside the image (the feet line measures depth only
+    then; a person close to the camera has the feet cut off by the bottom border)."""
+    ys = np.flatnonzero(mask.any(axis=1))
+    return bool(len(ys)) and int(ys[-1]) < mask.shape[0] - margin_px
+
+
 def reference_floor_row(camera: Camera) -> float:
     """Image row of the lowest silhouette point of a person standing at the reference spot."""
     return float(camera.project(np.array([0.0, 0.0, TOE_AHEAD_M]))[1])
@@ -133,10 +177,11 @@ def observed_placement(mask: NDArray[np.bool_], camera: Camera, foot_margin_px: 
     Returns
     -------
     (3,) float64 or None
-        None for an empty silhouette or one whose feet are above the horizon.
+        None for an empty silhouette, one whose feet are above the horizon or cut off by the
+        image's bottom border.
     """
     ys = np.flatnonzero(mask.any(axis=1))
-    if len(ys) == 0:
+    if len(ys) == 0 or not feet_in_view(mask):
         return None
     floor_ref = reference_floor_row(camera)
     foot = float(ys.max()) + foot_margin_px
@@ -196,7 +241,7 @@ def feet_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], center
         None when either bottom is not below the principal point.
     """
     rows = np.flatnonzero(mask.any(axis=1))
-    if len(rows) == 0 or len(template_runs) == 0:
+    if len(rows) == 0 or len(template_runs) == 0 or not feet_in_view(mask):
         return None
     obs = float(rows[-1]) + foot_margin_px
     tpl = float(template_runs[:, 0].max())

@@ -74,6 +74,12 @@ class FilterDB:
         of the observed shift.
     ref_column : float
         The column :func:`tracker_service.placement.observed_placement` assumes for every template.
+    level_bottom : tuple of (n_L,) float64, optional
+        Each node's lowest template row at the reference placement, full-resolution pixels
+        (:func:`tracker_service.placement.template_bottoms`); empty: every template is taken to
+        stand on the floor.
+    ref_bottom : float
+        The row a standing template's lowest row lies on (the observed feet line's reference).
     leaf_points : (NL, J, 2) float32, optional
         Image position of every joint of each leaf's template at the reference placement
         (:func:`tracker_service.skin.leaf_joint_points`); empty: no skin cue.
@@ -95,6 +101,8 @@ class FilterDB:
     sigma_part: NDArray[np.float32]
     level_column: tuple[NDArray[np.float64], ...] = ()
     ref_column: float = float("nan")
+    level_bottom: tuple[NDArray[np.float64], ...] = ()
+    ref_bottom: float = float("nan")
     leaf_points: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2), np.float32))
 
     @property
@@ -357,18 +365,29 @@ def _placement_cost(places: NDArray[np.float64], pred: NDArray[np.float64], para
 
 
 def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: NDArray[np.float64],
-                      obs_weight: float) -> NDArray[np.float64]:
-    """Predicted placement of each node: the observed shift assumes every template's lower-body
-    column is the root's; a template whose column lies elsewhere (a leg or arm to one side) is
-    shifted by the difference, in the observation's share of the prediction.
+                      obs_weight: float, obs: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Predicted placement of each node.
+
+    The observed placement assumes every template's lower-body column is the root's and its lowest
+    row is on the floor. A template whose column lies elsewhere (a leg or arm to one side) is
+    shifted by the difference; one whose feet are off the floor (a leap, a stride, a raised knee)
+    has the observed scale multiplied by ``(floor - c_y) / (bottom - c_y)`` so that its own lowest
+    row, not the floor row, meets the observed feet line. Both corrections enter in the
+    observation's share ``obs_weight`` of the prediction.
 
     Returns
     -------
     (n, 3) float64
     """
     out = np.repeat(pred[None], len(nodes), axis=0)
+    if obs_weight > 0 and obs is not None and db.level_bottom and np.isfinite(db.ref_bottom):
+        cy = db.center[1]
+        c = (db.ref_bottom - cy) / np.maximum(db.level_bottom[level][nodes] - cy, 1.0)
+        c = np.clip(np.nan_to_num(c, nan=1.0), 0.8, 2.0)
+        out[:, 2] += obs_weight * obs[2] * (c - 1.0)
+        out[:, 1] += obs_weight * obs[1] * (c - 1.0)
     if obs_weight > 0 and db.level_column and np.isfinite(db.ref_column):
-        corr = obs_weight * pred[2] * (db.ref_column - db.level_column[level][nodes])
+        corr = obs_weight * out[:, 2] * (db.ref_column - db.level_column[level][nodes])
         out[:, 0] += np.nan_to_num(corr)
     return out
 
@@ -415,6 +434,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     fresh = len(state.leaves) == 0
     pred = state.placement + 0.5 * state.velocity
     w_obs = 0.0
+    obs = None
     if observed_placement is not None:
         obs = np.asarray(observed_placement, np.float64)
         w_obs = 1.0 if fresh else params.observation_weight
@@ -423,7 +443,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     tree = db.tree
     n_levels = tree.n_levels
     nodes = np.arange(tree.level_sizes[0], dtype=np.int64)
-    centers = _node_predictions(db, 0, nodes, pred, w_obs)
+    centers = _node_predictions(db, 0, nodes, pred, w_obs, obs)
     evals: list[int] = []
     post = np.zeros(0)
     node_place = centers
@@ -435,7 +455,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
         d, places = _eval_level(db, features[lvl], lvl, nodes, centers, offs)
         evals.append(d.size)
-        node_pred = _node_predictions(db, lvl, nodes, pred, w_obs)
+        node_pred = _node_predictions(db, lvl, nodes, pred, w_obs, obs)
         total = 0.5 * (d / params.sigma[lvl]) ** 2 + _placement_cost(places, node_pred[:, None], params)  # eq. 6
         total = total + _skin_cost(db, lvl, nodes, places, skin, params)
         best = np.argmin(total, axis=1)
@@ -466,7 +486,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     offs = _offsets(2.0, 0.01, 3, 3)
     d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
     evals[-1] += d_ref.size
-    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs)
+    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs)
     total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _placement_cost(places, top_pred[:, None], params)
     total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
     best = np.argmin(total, axis=1)

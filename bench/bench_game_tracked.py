@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
 import sys
 import time
@@ -47,6 +48,7 @@ from tracker_service.pipeline import TrackerConfig, new_state, process_frame
 from tracker_service.scene import SceneConfig, SyntheticScene
 from tracker_service.template_db import LoadedDatabase
 from tracker_service.tracker_cli import ensure_db
+from tracker_service.tree_filter import FilterParams
 
 #: Speeds of the variants, cycled (1.0 = as authored).
 SPEEDS: tuple[float, ...] = (1.0, 0.8, 1.25)
@@ -128,11 +130,15 @@ def main() -> int:
                                                             "different scene seeds (default 3)")
     ap.add_argument("--lead-in", type=float, default=1.0, help="seconds of standing before each script (default 1)")
     ap.add_argument("--seed", type=int, default=0, help="first scene seed")
+    ap.add_argument("--max-heading", type=float, default=35.0, metavar="DEG",
+                    help="the tracker's game mode: the player faces the screen within DEG degrees (default 35, "
+                         "as `mocap-tracker run --max-heading 35`; 0: any heading)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args()
 
     loaded = ensure_db(args.db)
-    cfg = TrackerConfig(distance="xor", occlusion=True, body_candidates=tuple(b.name for b in BODY_MODELS))
+    cfg = TrackerConfig(distance="xor", occlusion=True, body_candidates=tuple(b.name for b in BODY_MODELS),
+                        filter=FilterParams(max_heading=math.radians(args.max_heading) if args.max_heading else None))
     labels = load_labels()
     names = (args.scripts.split(",") if args.scripts
              else [n for n in labels if not n.startswith("round_")])
@@ -163,7 +169,9 @@ def main() -> int:
     res = {"machine": f"{platform.node()} {platform.processor() or platform.machine()}",
            "database": {"path": str(loaded.path), "templates": int(loaded.db.n_leaves),
                         "scripts": loaded.meta.get("scripts", []), "body": loaded.body.name},
-           "tracker": {"distance": cfg.distance, "occlusion": cfg.occlusion, "body": "auto"},
+           "tracker": {"distance": cfg.distance, "occlusion": cfg.occlusion, "body": "auto",
+                       "max_heading_deg": args.max_heading or None, "skin": cfg.skin is not None,
+                       "smoothing": cfg.smoothing is not None},
            "lead_in_s": args.lead_in, "fps": FPS, "sequences": len(rows),
            "tracked": _fmt(score_tracked), "truth": _fmt(score_truth),
            "tracked_latency_p50_ms": round(score_tracked.latency_percentile(50), 1),

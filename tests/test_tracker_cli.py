@@ -22,3 +22,24 @@ def test_broken_toml_is_kept_for_the_reader_to_report(tmp_path: Path) -> None:
     (tmp_path / "ok.toml").write_text("[[key]]\nt = 0.0\n")
     (tmp_path / "other.toml").write_text("title = 'not a script'\n")
     assert [p.name for p in _gesture_scripts([str(tmp_path)])] == ["bad.toml", "ok.toml"]
+
+
+def test_tracker_options_build_the_config() -> None:
+    import argparse
+    import math
+
+    from tracker_service.tracker_cli import _config
+
+    def ns(**kw: object) -> argparse.Namespace:
+        base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
+                "no_smoothing": False}
+        return argparse.Namespace(**(base | kw))
+
+    cfg = _config(ns())
+    assert cfg.filter.max_heading is None and cfg.skin is not None and cfg.smoothing is not None
+    cfg = _config(ns(max_heading=35.0, no_skin=True, no_smoothing=True, body="wTY"))
+    assert cfg.filter.max_heading == pytest.approx(math.radians(35.0))
+    assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)
+    for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
+        with pytest.raises(ValueError):
+            _config(ns(**bad))

@@ -48,6 +48,23 @@ def test_prior_is_a_distribution_and_follows_the_state(small_db) -> None:  # typ
     assert p2[5] < p1[5]
 
 
+def test_max_heading_keeps_the_prior_on_leaves_facing_the_camera(small_db) -> None:  # type: ignore[no-untyped-def]
+    db, *_ = small_db
+    lim = float(np.median(np.abs(db.leaf_heading)))  # the small database's takes face the camera: half of them
+    prm = FilterParams(max_heading=lim)
+    far = np.abs(db.leaf_heading) > lim
+    assert far.any() and (~far).any()
+    p0 = predict_leaves(initial_state(), db, prm)
+    assert p0.sum() == pytest.approx(1.0) and np.all(p0[far] == 0)
+    # from a turned leaf, the mass moves to the allowed leaves only (also the re-acquisition share)
+    turned = int(np.flatnonzero(far)[0])
+    st = initial_state()
+    st = type(st)(np.array([turned]), np.array([1.0]), st.placement)
+    p1 = predict_leaves(st, db, prm)
+    assert p1.sum() == pytest.approx(1.0) and np.all(p1[far] == 0)
+    assert predict_leaves(st, db, FilterParams())[far].sum() > 0  # without the limit they keep mass
+
+
 def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-untyped-def]
     db, body, motions, _, _ = small_db
     subject = body_model("mLA").body

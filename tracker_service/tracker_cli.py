@@ -11,10 +11,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +80,12 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                        help="silhouette distance (default: xor, the most accurate in our measurements; the "
                             "paper's choice is nwxor)")
         p.add_argument("--no-occlusion", action="store_true", help="disable eq. 14 (dynamic model DM1)")
+        p.add_argument("--max-heading", type=float, metavar="DEG",
+                       help="the user faces the camera within DEG degrees (e.g. 35 for the game): poses turned "
+                            "further get no prior (default: any heading)")
+        p.add_argument("--no-skin", action="store_true", help="silhouettes only (no skin colour cue for the hands)")
+        p.add_argument("--no-smoothing", action="store_true", help="publish the raw per-frame estimate "
+                                                                  "(no One Euro smoothing)")
 
     rp = sub.add_parser("run", parents=list(parents), help="the tracker daemon: frames -> poses over Zenoh",
                         description="Track the person in front of the camera and publish PoseFrames on "
@@ -194,13 +202,23 @@ def _cmd_build_db(args: argparse.Namespace) -> int:
 def _config(args: argparse.Namespace) -> Any:
     from .body_models import BODY_MODELS
     from .pipeline import TrackerConfig
+    from .tree_filter import FilterParams
 
     names = [m.name for m in BODY_MODELS]
     if args.body != "auto" and args.body not in names:
         raise ValueError(f"unknown body model {args.body!r}; choose auto or one of {', '.join(names)}")
     # auto: the family is scored on the first frames; NAME: that model (templates scaled to its height)
     cands = tuple(names) if args.body == "auto" else (args.body,)
-    return TrackerConfig(distance=args.distance, occlusion=not args.no_occlusion, body_candidates=cands)
+    if args.max_heading is not None and not 0.0 < args.max_heading <= 180.0:
+        raise ValueError(f"--max-heading must be in (0, 180] degrees, got {args.max_heading}")
+    cfg = TrackerConfig(distance=args.distance, occlusion=not args.no_occlusion, body_candidates=cands,
+                        filter=FilterParams(max_heading=None if args.max_heading is None
+                                            else math.radians(args.max_heading)))
+    if args.no_skin:
+        cfg = replace(cfg, skin=None)
+    if args.no_smoothing:
+        cfg = replace(cfg, smoothing=None)
+    return cfg
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

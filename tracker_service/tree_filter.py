@@ -143,6 +143,10 @@ class FilterParams:
         Heading range (radians) of the uniform mass around the current heading.
     hist_weight : float
         Weight of the transition histograms against the Gaussian dynamics.
+    max_heading : float or None
+        Leaves turned further than this (radians) from facing the camera get no prior mass: an
+        application whose user faces the screen (the game) says so, and the front/back and
+        turned-body ambiguities of the silhouette go away. None: any heading.
     occlusion_m : float
         ``m`` of eq. 14.
     support : int
@@ -186,6 +190,7 @@ class FilterParams:
     uniform_mass: float = 0.05
     max_turn: float = 1.0
     hist_weight: float = 0.5
+    max_heading: float | None = None
     occlusion_m: float = 5.0
     support: int = 48
     step_px: float = 8.0
@@ -286,8 +291,12 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
     (NL,) float64, sums to 1.
     """
     nl = db.n_leaves
+    allowed = (np.abs(db.leaf_heading) <= params.max_heading if params.max_heading is not None
+               else np.ones(nl, bool))
+    if not allowed.any():
+        allowed[:] = True
     if len(state.leaves) == 0:  # no history: faces the camera first (front/back resolved so)
-        prior = db.leaf_facing.astype(np.float64)
+        prior = (db.leaf_facing & allowed).astype(np.float64)
         if not prior.any():
             prior[:] = 1.0
         return prior / prior.sum()
@@ -306,9 +315,12 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
     # re-acquisition mass, restricted to headings near the current one
     cur = db.leaf_heading[state.leaves].astype(np.float64)
     mean_heading = np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur))
-    near = np.abs(np.angle(np.exp(1j * (db.leaf_heading - mean_heading)))) < params.max_turn
+    near = (np.abs(np.angle(np.exp(1j * (db.leaf_heading - mean_heading)))) < params.max_turn) & allowed
     prior *= 1.0 - params.uniform_mass
     prior[near] += params.uniform_mass / max(int(near.sum()), 1)
+    prior *= allowed
+    if prior.sum() <= 0:
+        prior = allowed.astype(np.float64)
     return prior / prior.sum()
 
 

@@ -178,7 +178,7 @@ class FilterParams:
         shirt).
     """
 
-    sigma: tuple[float, ...] = (0.01, 0.008, 0.006)
+    sigma: tuple[float, ...] = (0.01, 0.01, 0.01)
     keep_rel: float = 2e-3
     max_keep: tuple[int, ...] = (16, 48)
     keep_likelihood: tuple[int, ...] = (8, 16)

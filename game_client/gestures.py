@@ -119,8 +119,9 @@ class RecognizerConfig:
         which (from 0.2 s before its start to its end) the facing turned by more than
         ``still_max_turn_deg`` or the pelvis travelled more than ``still_max_travel`` body heights
         (``crouch_max_travel`` for a crouch) is part of some other movement (a dance spin, a
-        stylised walk) and is dropped. 60 degrees: a single-camera tracker's heading wanders by
-        +-25 degrees while both arms are up (tracked game scripts), dance spins turn 90 or more.
+        stylised walk) and is dropped. 55 degrees: a single-camera tracker's heading wanders by
+        +-25 degrees while both arms are up (tracked game scripts); the first real take to give a
+        false gesture needs 61.6 (`bench_game_margins.py`).
     still_depth_weight : float
         Weight of the depth axis (world ``z``, the camera's viewing direction) in that travel: a
         single camera measures depth several times less precisely than sideways motion (tracked
@@ -138,7 +139,7 @@ class RecognizerConfig:
     max_gap_s: float = 0.5
     glitch_h: float = 0.35
     refractory_s: float = 0.3
-    still_max_turn_deg: float = 60.0
+    still_max_turn_deg: float = 55.0
     still_max_travel: float = 0.15
     crouch_max_travel: float = 0.25
     still_depth_weight: float = 0.5

@@ -12,8 +12,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["COLLISION_PASSES", "capsule_geometry", "collide", "jit_kernel", "penetration", "round_cone",
-           "round_cone_geo"]
+__all__ = ["COLLISION_PASSES", "PINCH_COS", "capsule_geometry", "collide", "jit_kernel", "penetration", "pinch_margin",
+           "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -23,6 +23,8 @@ _jit = jit_kernel
 
 #: Most projection passes over the capsules per particle (only particles moved in a pass get another).
 COLLISION_PASSES = 4
+#: Two contact normals with a cosine below this face each other: the cloth is in a crease.
+PINCH_COS = -0.3
 #: Columns of the per-capsule geometry table built by :func:`capsule_geometry`.
 _GEO_COLS = 13
 
@@ -138,6 +140,89 @@ def _friction(v: F64, i: int, n: F64, vs: F64, dvn: float, friction: float) -> N
 
 
 @_jit
+def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin: float) -> float:  # pragma: no cover
+    """Clearance a particle at ``p`` can keep from the body: ``margin``, or less in a crease.
+
+    If the two nearest capsules within ``margin`` face each other (normals more than
+    :data:`PINCH_COS` apart), the cloth lies in the gap between two body parts: it keeps half the
+    gap (0 where they overlap) from each instead of ``margin``, so it fits in the gap rather than
+    being ploughed along by the part that closes it."""
+    d1 = d2 = margin
+    n1x = n1y = n1z = n2x = n2y = n2z = 0.0
+    for c in range(geo.shape[0]):
+        ex, ey, ez = px - centre[c, 0], py - centre[c, 1], pz - centre[c, 2]
+        if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
+            continue
+        d, nx, ny, nz, _t = round_cone_geo(px, py, pz, geo[c])
+        if d < d1:
+            d2, n2x, n2y, n2z = d1, n1x, n1y, n1z
+            d1, n1x, n1y, n1z = d, nx, ny, nz
+        elif d < d2:
+            d2, n2x, n2y, n2z = d, nx, ny, nz
+    if d2 < margin and n1x * n2x + n1y * n2y + n1z * n2z < PINCH_COS:
+        return min(margin, max(0.0, 0.5 * (d1 + d2)))
+    return margin
+
+
+@_jit
+def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b0: F64, a1: F64, b1: F64,
+             radii: F64, margin: float, friction: float, dt: float, floor: float, use_floor: bool, contact: F64,
+             scratch: F64) -> bool:  # pragma: no cover
+    """Projection passes of particle ``i`` with clearance ``m`` from the capsules (``margin`` from the
+    floor), then friction or, if pinched, the stoutest touched part's velocity; True if pinched.
+    ``scratch (3, 3)``: normal, surface velocity, held velocity."""
+    n_caps = a1.shape[0]
+    for o in range(6):
+        contact[i, o] = 0.0
+    first = -1
+    pinched = False
+    dvn = 0.0
+    big = -1.0
+    for _ in range(COLLISION_PASSES):
+        moved = False
+        for c in range(n_caps):
+            ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
+            if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
+                continue
+            d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo[c])
+            if d < m:
+                vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
+                vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
+                vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
+                dv = _push(x, v, i, m - d, nx, ny, nz, vsx, vsy, vsz)
+                _record(contact, i, c, first, nx, ny, nz)
+                if max(radii[c, 0], radii[c, 1]) > big:  # the stoutest body part touched holds pinched cloth
+                    big = max(radii[c, 0], radii[c, 1])
+                    scratch[2, 0], scratch[2, 1], scratch[2, 2] = vsx, vsy, vsz
+                if first < 0 or first == c:
+                    first = c
+                    dvn += dv
+                    scratch[0, 0], scratch[0, 1], scratch[0, 2] = nx, ny, nz
+                    scratch[1, 0], scratch[1, 1], scratch[1, 2] = vsx, vsy, vsz
+                else:
+                    pinched = True
+                moved = True
+        if use_floor and x[i, 1] < floor + margin:
+            dv = _push(x, v, i, floor + margin - x[i, 1], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+            _record(contact, i, n_caps, first, 0.0, 1.0, 0.0)
+            if first < 0 or first == n_caps:
+                first = n_caps
+                dvn += dv
+                scratch[0, 0], scratch[0, 1], scratch[0, 2] = 0.0, 1.0, 0.0
+                scratch[1, 0], scratch[1, 1], scratch[1, 2] = 0.0, 0.0, 0.0
+            else:
+                pinched = True
+            moved = True
+        if not moved:
+            break
+    if first >= 0 and not pinched:
+        _friction(v, i, scratch[0], scratch[1], dvn, friction)
+    elif pinched and big > 0.0:
+        v[i, 0], v[i, 1], v[i, 2] = scratch[2, 0], scratch[2, 1], scratch[2, 2]
+    return pinched
+
+
+@_jit
 def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
             margin: float, friction: float, dt: float, floor: float, use_floor: bool,
             contact: F64) -> None:  # pragma: no cover
@@ -145,56 +230,31 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
     same rules as ``collide_np``.
 
     ``contact (N, 6)`` receives the normals of the first and of another surface each particle was
-    pushed off (zero where none). Friction acts on particles that touch a single surface only."""
-    n_caps = a1.shape[0]
-    geo = np.empty((n_caps, _GEO_COLS))
+    pushed off (zero where none). Friction acts on particles that touch a single surface only; a
+    particle pinched between body parts takes the velocity of the stoutest one it touches (cloth
+    pressed against the hip by a hand stays with the hip instead of being torn along by the hand).
+    A pinched particle in a crease narrower than twice the margin is resolved again from where it
+    was with the clearance of :func:`pinch_margin` (half the gap), so it fits in the gap."""
+    geo = np.empty((a1.shape[0], _GEO_COLS))
     capsule_geometry(a1, b1, radii, margin, geo)
     centre = 0.5 * (a1 + b1)
-    contact[:] = 0.0
-    nrm = np.empty(3)
-    vel = np.empty(3)
+    scratch = np.empty((3, 3))
     for i in range(x.shape[0]):
         if active[i] <= 0.0:
+            for o in range(6):
+                contact[i, o] = 0.0
             continue
-        first = -1
-        pinched = False
-        dvn = 0.0
-        for _ in range(COLLISION_PASSES):
-            moved = False
-            for c in range(n_caps):
-                ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
-                if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
-                    continue
-                d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo[c])
-                if d < margin:
-                    vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
-                    vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
-                    vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
-                    dv = _push(x, v, i, margin - d, nx, ny, nz, vsx, vsy, vsz)
-                    _record(contact, i, c, first, nx, ny, nz)
-                    if first < 0 or first == c:
-                        first = c
-                        dvn += dv
-                        nrm[0], nrm[1], nrm[2] = nx, ny, nz
-                        vel[0], vel[1], vel[2] = vsx, vsy, vsz
-                    else:
-                        pinched = True
-                    moved = True
-            if use_floor and x[i, 1] < floor + margin:
-                dv = _push(x, v, i, floor + margin - x[i, 1], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
-                _record(contact, i, n_caps, first, 0.0, 1.0, 0.0)
-                if first < 0 or first == n_caps:
-                    first = n_caps
-                    dvn += dv
-                    nrm[0], nrm[1], nrm[2] = 0.0, 1.0, 0.0
-                    vel[:] = 0.0
-                else:
-                    pinched = True
-                moved = True
-            if not moved:
-                break
-        if first >= 0 and not pinched:
-            _friction(v, i, nrm, vel, dvn, friction)
+        px, py, pz = x[i, 0], x[i, 1], x[i, 2]
+        ux, uy, uz = v[i, 0], v[i, 1], v[i, 2]
+        if not _resolve(x, v, i, margin, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor,
+                        use_floor, contact, scratch):
+            continue
+        m = pinch_margin(px, py, pz, geo, centre, margin)
+        if m < margin:  # a crease: start again with the clearance the gap leaves
+            x[i, 0], x[i, 1], x[i, 2] = px, py, pz
+            v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
+            _resolve(x, v, i, m, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor,
+                     contact, scratch)
 
 
 @_jit

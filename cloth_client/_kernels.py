@@ -22,6 +22,7 @@ from ._contact_kernels import (
     collide,
     jit_kernel,
     penetration,
+    pinch_margin,
     round_cone,
     round_cone_geo,
 )
@@ -35,6 +36,7 @@ __all__ = [
     "line_limit",
     "long_range_attach",
     "penetration",
+    "pinch_margin",
     "round_cone",
     "round_cone_geo",
     "simulate_substeps",
@@ -277,7 +279,7 @@ def simulate_substeps(
     x: F64, v: F64, inv_mass: F64, springs: I64, rest: F64, k: F64, kd: F64, tris: I64,
     drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
     lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
-    lim_sweeps: int, final_sweeps: int,
+    lim_sweeps: int, final_sweeps: int, final_rounds: int,
     anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
     max_stretch: float, max_compression: float,
     pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
@@ -331,18 +333,24 @@ def simulate_substeps(
                     for d in range(3):
                         v[i, d] = (x[i, d] - xp[i, d]) / dt
             collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact)
-        # last word to the strain limit, sliding contacts along their surfaces instead of into them
-        for i in range(n):
-            for d in range(3):
-                f[i, d] = x[i, d]
-        for _sweep in range(final_sweeps):
-            line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
-            line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-            line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
-        strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
-        for i in range(n):
-            for d in range(3):
-                v[i, d] += (x[i, d] - f[i, d]) / dt
+        # final rounds: strain limiting, then collision (with final_rounds == 0: one contact-aware strain
+        # pass that slides contacts along their surfaces instead of into them, and no collision after it)
+        for _r in range(max(final_rounds, 1)):
+            for i in range(n):
+                for d in range(3):
+                    f[i, d] = x[i, d]
+            if final_rounds > 0:
+                contact[:] = 0.0
+            for _sweep in range(final_sweeps):
+                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
+                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
+                line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
+            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
+            for i in range(n):
+                for d in range(3):
+                    v[i, d] += (x[i, d] - f[i, d]) / dt
+            if final_rounds > 0:  # friction was applied in the interleaved passes already
+                collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact)
         for i in range(n):
             sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
             if sp > max_speed and inv_mass[i] > 0.0:

@@ -112,12 +112,29 @@ class AvatarKeys:
     joints: F64
     rotations: F64
 
-    def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64) -> F64:
-        """World positions ``(K + 1, P, 3)`` of pins given by joint index and joint-frame offset."""
-        r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
-        out: F64 = self.joints[:, pin_joint] + np.einsum("kpij,pj->kpi", r, pin_local)
-        return out
+    def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64, axis: NDArray[np.int64] | None = None,
+                    axis_s: F64 | None = None) -> F64:
+        """World positions ``(K + 1, P, 3)`` of pins.
 
+        Parameters
+        ----------
+        pin_joint : (P,) int64
+            Joint whose frame carries each pin's offset.
+        pin_local : (P, 3) float64
+            Offset in that frame, metres.
+        axis : (P, 2) int64, optional
+            Joints ``a, b`` of the bone axis the pin is anchored on (default: the pin's joint).
+        axis_s : (P,) float64, optional
+            Anchor parameter ``s`` along that axis: the target is ``(1 - s) J_a + s J_b + R pin_local``.
+        """
+        r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
+        if axis is None or axis_s is None:
+            origin = self.joints[:, pin_joint]
+        else:
+            s = axis_s[None, :, None]
+            origin = (1.0 - s) * self.joints[:, axis[:, 0]] + s * self.joints[:, axis[:, 1]]
+        out: F64 = origin + np.einsum("kpij,pj->kpi", r, pin_local)
+        return out
 
     def push_out(self, points: F64, clearance: float) -> F64:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
@@ -133,14 +150,16 @@ class AvatarKeys:
                 out[k, inside] += depth[inside, None] * n[inside, c[inside]]
         return out
 
-    def covered(self, points: F64, margin: float) -> NDArray[np.bool_]:
+    def covered(self, points: F64, margin: float | F64) -> NDArray[np.bool_]:
         """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``
-        (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband."""
+        (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband.
+
+        ``margin`` is a distance in metres, or one per capsule ``(C,)``."""
         out = np.zeros(points.shape[1], dtype=bool)
         for k in range(points.shape[0]):
             d, _, _ = round_cone_np(points[k], self.track.a[k], self.track.b[k], self.track.radii[:, 0],
                                     self.track.radii[:, 1])
-            out |= d.min(axis=1) < margin
+            out |= (d < margin).any(axis=1)
         return out
 
 

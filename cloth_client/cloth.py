@@ -6,11 +6,13 @@ One call of :func:`step` advances the cloth by ``dt`` (one received frame) in ``
    drag on the particle's normal velocity (``0.5 rho_air C_d A v_n |v_n|``);
 2. semi-implicit (symplectic) Euler, with mass-proportional damping ``v /= 1 + c dt``;
 3. pinned particles placed on their targets (interpolated between the step's keys);
-4. strain limiting (:mod:`cloth_client.constraints`): long-range attachments, line solves and
-   Gauss-Seidel sweeps, interleaved with collision, then a final contact-aware pass; velocities
-   follow the corrected positions;
-5. collision with the body capsules and the floor (:mod:`cloth_client.collision`);
-6. a speed clamp as the last guard against a blow-up.
+4. strain limiting (:mod:`cloth_client.constraints`): long-range attachments, line solves and a
+   Gauss-Seidel sweep, then collision with the body capsules and the floor
+   (:mod:`cloth_client.collision`), ``limit_iterations`` times; then ``final_rounds`` rounds of
+   *[line solves, Gauss-Seidel sweep, collision]* (Provot's order: the strain limit, then the
+   body, has the last word), so every substep ends outside the body wherever it leaves room;
+   velocities follow the corrected positions;
+5. a speed clamp as the last guard against a blow-up.
 
 ``n`` is the smallest count that (a) keeps the explicit springs stable (largest eigenvalue of the
 mass-normalised stiffness matrix, with a margin for stretched springs, reduced for the spring
@@ -72,7 +74,16 @@ class ClothParams:
     max_stretch, max_compression : float
         Strain limits of the structural springs (0.05 = 5 %).
     limit_iterations : int
-        Gauss-Seidel sweeps of strain limiting per substep.
+        Rounds of *[long-range attachments, line solves, Gauss-Seidel sweep, collision]* per substep.
+    limit_sweeps : int
+        Line-solve sweeps in each of those rounds.
+    final_sweeps : int
+        Line-solve sweeps in each final round.
+    final_rounds : int
+        Final rounds of *[line solves, Gauss-Seidel sweep, collision]*; 0 = one contact-aware strain
+        pass without collision after it (the previous scheme).
+    tethers : bool
+        Long-range attachments on.
     friction : float
         Coulomb coefficient between cloth and body / floor.
     margin : float
@@ -102,9 +113,10 @@ class ClothParams:
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_stretch: float = 0.03
     max_compression: float = 0.10
-    limit_iterations: int = 2
+    limit_iterations: int = 1
     limit_sweeps: int = 1
     final_sweeps: int = 2
+    final_rounds: int = 2
     tethers: bool = True
     friction: float = 0.2
     margin: float = 0.006
@@ -296,6 +308,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
             0.5 * p.air_density * p.drag_coefficient, np.asarray(p.wind, dtype=np.float64),
             np.asarray(p.gravity, dtype=np.float64), p.mass_damping + extra_damping,
             model.lim_springs, model.lim_lo, model.lim_hi, p.limit_iterations, p.limit_sweeps, p.final_sweeps,
+            p.final_rounds,
             model.garment.anchor, model.reach,
             model.lines_v, model.rest_v, model.lines_h, model.rest_h, model.lines_s, model.rest_s,
             p.max_stretch, p.max_compression,
@@ -370,11 +383,16 @@ def _substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64,
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
             v[free] = (x[free] - xp[free]) / dt
             collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact)
-        before = x.copy()
-        _line_pass(x, model, inv_mass, contact, p.final_sweeps)
-        strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
-                        1 if p.final_sweeps > 0 else 0, contact)
-        v += (x - before) / dt
+        for _ in range(max(p.final_rounds, 1)):
+            before = x.copy()
+            if p.final_rounds > 0:
+                contact[:] = 0.0
+            _line_pass(x, model, inv_mass, contact, p.final_sweeps)
+            strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
+                            1 if p.final_sweeps > 0 else 0, contact)
+            v += (x - before) / dt
+            if p.final_rounds > 0:  # friction was applied in the interleaved passes already
+                collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, 0.0, dt, p.floor, contact)
         speed = np.linalg.norm(v, axis=1)
         fast = free & (speed > p.max_speed)
         v[fast] *= (p.max_speed / speed[fast])[:, None]

@@ -21,12 +21,18 @@ A particle closer than ``margin`` (the cloth's half thickness) to a capsule is p
 offset surface and the normal component of its velocity relative to the capsule surface is removed
 if approaching. After all passes, a particle that touched a single surface has its tangential
 velocity relative to it reduced by Coulomb friction ``mu * |dv_n|``; cloth squeezed between two
-body parts gets no friction (each would drag it its own way and tear it). Capsules
+body parts gets no friction (each would drag it its own way and tear it) but takes the velocity of
+the stoutest part it touches (a hand pressing a skirt against the hip slides over it, the cloth
+stays with the hip). In a crease narrower than twice the margin (two nearest surfaces facing each
+other) the clearance shrinks to half the gap (:func:`pinch_margin_np`), so the cloth fits in the
+gap instead of being ploughed along by the part that closes it. Capsules
 are treated one after another per particle (Gauss-Seidel); a particle that was moved gets another
 pass (up to :data:`COLLISION_PASSES`, the floor included in each), which works cloth caught where
 two capsules overlap, or a capsule meets the floor, out to the outside of their union. The normals
 of up to two surfaces each particle touches are recorded for the contact-aware strain limiting
-that follows (cloth pinched in a crease may then only slide along it).
+that follows (cloth pinched in a crease may then only slide along it). The solver ends every
+substep with one more collision pass (after the final strain limiting), so the state it hands
+on is outside the body wherever the body leaves room.
 
 The numba kernels in :mod:`cloth_client._kernels` implement the same operations; the functions
 here are their plain numpy references (tests check that both agree).
@@ -44,6 +50,7 @@ __all__ = [
     "collide_np",
     "max_relative_travel",
     "penetration_np",
+    "pinch_margin_np",
     "round_cone_np",
 ]
 
@@ -193,6 +200,8 @@ def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F
 
 #: Most projection passes over the capsules per particle (only particles moved in a pass get another).
 COLLISION_PASSES = 4
+#: Two contact normals with a cosine below this face each other: the cloth is in a crease.
+PINCH_COS = -0.3
 
 
 def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:
@@ -252,12 +261,32 @@ def collide_np(
         Output: unit normals of the first and of another surface each particle was pushed off
         (zero where none).
     """
+    x0, v0 = x.copy(), v.copy()
+    pinched = _resolve_np(x, v, free, a0, b0, a1, b1, radii, np.full(len(x), margin), margin, friction, dt, floor,
+                          contact)
+    m = np.full(len(x), margin)
+    m[pinched] = pinch_margin_np(x0[pinched], a1, b1, radii, margin)
+    again = pinched & (m < margin)  # a crease: start again with the clearance the gap leaves
+    if again.any():
+        x[again], v[again] = x0[again], v0[again]
+        sub = np.zeros((int(again.sum()), 6))
+        xs, vs = x[again], v[again]
+        _resolve_np(xs, vs, np.ones(len(xs), bool), a0, b0, a1, b1, radii, m[again], margin, friction, dt, floor, sub)
+        x[again], v[again], contact[again] = xs, vs, sub
+
+
+def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64, m: F64,
+                margin: float, friction: float, dt: float, floor: float | None, contact: F64) -> NDArray[np.bool_]:
+    """Projection passes with clearance ``m (N,)`` from the capsules and ``margin`` from the floor,
+    then friction or the held velocity; returns which particles were pinched (reference of ``K._resolve``)."""
     contact[:] = 0.0
     n = len(x)
     first = np.full(n, -1, dtype=np.int64)
     pinched = np.zeros(n, dtype=bool)
     dvn = np.zeros(n)
-    nrm, vel = np.zeros((n, 3)), np.zeros((n, 3))
+    nrm, vel, hold = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    big = np.full(n, -1.0)
+    stout = radii.max(axis=1)
     va, vb = (a1 - a0) / dt, (b1 - b0) / dt
 
     def hit_surface(hit: NDArray[np.bool_], surface: int, push: F64, nn: F64, vs: F64) -> None:
@@ -275,11 +304,13 @@ def collide_np(
         moved = np.zeros_like(todo)
         for c in range(a1.shape[0]):
             d, nc, t = round_cone_np(x, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
-            hit = todo & (d[:, 0] < margin)
+            hit = todo & (d[:, 0] < m)
             if not hit.any():
                 continue
             vs = (1.0 - t[:, :1]) * va[c] + t[:, :1] * vb[c]
-            hit_surface(hit, c, margin - d[:, 0], nc[:, 0], vs)
+            hit_surface(hit, c, m - d[:, 0], nc[:, 0], vs)
+            upd = hit & (stout[c] > big)
+            hold[upd], big[upd] = vs[upd], stout[c]
             moved |= hit
         if floor is not None:
             hit = todo & (x[:, 1] < floor + margin)
@@ -289,6 +320,27 @@ def collide_np(
         if not todo.any():
             break
     _friction(v, (first >= 0) & ~pinched, nrm, vel, dvn, friction)
+    held = pinched & (big > 0.0)
+    v[held] = hold[held]
+    return pinched
+
+
+def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
+    """Clearance ``(N,)`` each particle can keep from the body (reference of ``K.pinch_margin``).
+
+    ``margin``, except in a crease: when the two nearest capsules within ``margin`` have normals
+    facing each other (cosine below ``PINCH_COS``), half the gap between them (0 where they overlap).
+    """
+    if len(a) < 2:
+        return np.full(len(x), margin)
+    d, nrm, _ = round_cone_np(x, a, b, radii[:, 0], radii[:, 1])
+    order = np.argsort(d, axis=1, kind="stable")[:, :2]
+    rows = np.arange(len(x))
+    d1, d2 = d[rows, order[:, 0]], d[rows, order[:, 1]]
+    cos = np.einsum("ij,ij->i", nrm[rows, order[:, 0]], nrm[rows, order[:, 1]])
+    crease = (d2 < margin) & (cos < PINCH_COS)
+    out: F64 = np.where(crease, np.clip(0.5 * (d1 + d2), 0.0, margin), margin)
+    return out
 
 
 def penetration_np(x: F64, a: F64, b: F64, radii: F64, free: NDArray[np.bool_]) -> F64:

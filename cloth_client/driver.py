@@ -15,9 +15,10 @@ it ``(pose, time)`` pairs as they arrive:
   moved rigidly with the root, the limbs swing from their old to their new angles over
   ``reset_blend_s`` of simulated time with extra damping, then extra damping fades out over
   ``reset_calm_s``;
-* **a body part over the seam** (a shrug under the collar, a thigh or hand on the waistband) -
+* **a body part over the seam** (a shrug under the collar, a hand or forearm on the waistband) -
   the garment's ``seam`` policy applies: a collar slides out onto the covering surface; a
-  waistband lets the covered pins and their neighbours go for that step (they collide like free
+  waistband lets the covered pins (a body part other than the one it is sewn round within
+  ``seam_reach``) and their neighbours go for that step (they collide like free
   cloth) unless most of it is covered, when it slides too;
 * a non-finite value (never expected) re-dresses the garment and is counted.
 """
@@ -36,6 +37,7 @@ from protocol.skeleton import Body
 from . import _kernels as K
 from .avatar import Continuity, capsule_endpoints, interpolate_poses, is_discontinuity, pose_keys, rigid_root_delta
 from .cloth import ClothModel, ClothParams, ClothState, build_model, energy, initial_state, step, structural_strain
+from .collision import round_cone_np
 from .garment import Garment
 
 __all__ = ["ClothDriver", "DriverConfig", "FrameStats", "RunStats"]
@@ -55,6 +57,7 @@ class DriverConfig:
     reset_blend_s: float = 0.1
     reset_calm_s: float = 0.3
     reset_damping: float = 6.0
+    seam_reach: float = 0.04
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -130,6 +133,7 @@ class ClothDriver:
         self._depth = np.empty(garment.n_particles)
         self._free = self.model.inv_mass > 0
         self._first: tuple[F64, float] | None = None
+        self._seam_margin = self._seam_reach()
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -234,8 +238,9 @@ class ClothDriver:
         assert self.state is not None
         n_keys = max(1, math.ceil(dt / self.config.key_dt - 1e-9))
         keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)))
-        pins = keys.pin_targets(self.garment.pin_joint, self.garment.pin_local)
-        released = self._widen(keys.covered(pins, self.model.params.margin))
+        g = self.garment
+        pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+        released = self._widen(keys.covered(pins, self._seam_margin))
         if self.garment.seam == "slide" or released.sum() > len(released) // 2:
             # slide the seam over the body part that covers it (always for a collar; for a
             # waistband when most of it is covered, instead of letting the garment go)
@@ -248,6 +253,21 @@ class ClothDriver:
                           extra_damping=extra_damping)
         self._free = self.model.inv_mass > 0
         self._free[self.garment.pin_index[released]] = True
+
+    def _seam_reach(self) -> F64:
+        """Per-capsule distance ``(C,)`` at which a body part counts as covering a seam pin.
+
+        The cloth margin for the body parts the seam is sewn round (within ``seam_reach`` of a pin
+        in the build pose); ``seam_reach`` for the others (for a waistband: arms and hands), which
+        would otherwise wedge between the pinned row and the cloth just below it."""
+        g, p = self.garment, self.model.params
+        out = np.full(len(self.body.capsule_radii), p.margin)
+        if g.seam != "release":
+            return out
+        a, b = capsule_endpoints(self.body, g.pose)
+        d, _, _ = round_cone_np(g.rest[g.pin_index], a, b, self.body.capsule_radii[:, 0], self.body.capsule_radii[:, 1])
+        out[d.min(axis=0) > self.config.seam_reach] = self.config.seam_reach
+        return out
 
     def _widen(self, covered: NDArray[np.bool_]) -> NDArray[np.bool_]:
         """``covered`` pins plus their neighbours along the seam (the seam gives way around the

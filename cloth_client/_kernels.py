@@ -17,9 +17,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._contact_kernels import (
+    ALL_CAPSULES,
+    BROAD_SLACK,
     COLLISION_PASSES,
+    broad_phase,
     capsule_geometry,
     collide,
+    inline_kernel,
     jit_kernel,
     penetration,
     pinch_margin,
@@ -28,7 +32,10 @@ from ._contact_kernels import (
 )
 
 __all__ = [
+    "ALL_CAPSULES",
+    "BROAD_SLACK",
     "COLLISION_PASSES",
+    "broad_phase",
     "capsule_geometry",
     "collide",
     "drag_forces",
@@ -47,6 +54,7 @@ __all__ = [
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 _jit = jit_kernel
+_inline = inline_kernel
 
 
 @_jit
@@ -127,7 +135,7 @@ def long_range_attach(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:  
             x[i, 2] = x[a, 2] + s * dz
 
 
-@_jit
+@_inline
 def _move(x: F64, i: int, w: float, dx: float, dy: float, dz: float, contact: F64) -> None:  # pragma: no cover
     """``x[i] += w * d``, less any component of the move into the surfaces particle ``i`` touches.
 
@@ -265,7 +273,7 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
             _move(x, row[k], inv_mass[row[k]], mx, my, mz, contact)
 
 
-@_jit
+@_inline
 def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
     k = keys.shape[0] - 1
     u = min(max(s, 0.0), 1.0) * k
@@ -302,6 +310,8 @@ def simulate_substeps(
     a1 = np.empty(cap_a.shape[1:])
     b1 = np.empty(cap_a.shape[1:])
     contact = np.zeros((n, 6))
+    cand = np.empty(n, dtype=np.int64)
+    xb = np.empty((n, 3))
     for step in range(n_sub):
         s0 = step / n_sub
         s1 = (step + 1) / n_sub
@@ -321,6 +331,7 @@ def simulate_substeps(
         _lerp_keys(cap_a, s1, a1)
         _lerp_keys(cap_b, s1, b1)
         contact[:] = 0.0
+        broad_phase(x, inv_mass, a1, b1, radii, margin + BROAD_SLACK, cand, xb)
         for _ in range(lim_iterations):  # strain limiting and contacts, interleaved
             long_range_attach(x, inv_mass, anchor, reach)
             for _sweep in range(lim_sweeps):
@@ -332,7 +343,8 @@ def simulate_substeps(
                 if inv_mass[i] > 0.0:
                     for d in range(3):
                         v[i, d] = (x[i, d] - xp[i, d]) / dt
-            collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact)
+            collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact,
+                    cand, xb, BROAD_SLACK)
         # final rounds: strain limiting, then collision (with final_rounds == 0: one contact-aware strain
         # pass that slides contacts along their surfaces instead of into them, and no collision after it)
         for _r in range(max(final_rounds, 1)):
@@ -350,7 +362,8 @@ def simulate_substeps(
                 for d in range(3):
                     v[i, d] += (x[i, d] - f[i, d]) / dt
             if final_rounds > 0:  # friction was applied in the interleaved passes already
-                collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact)
+                collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact,
+                        cand, xb, BROAD_SLACK)
         for i in range(n):
             sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
             if sp > max_speed and inv_mass[i] > 0.0:

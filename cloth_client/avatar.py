@@ -22,6 +22,7 @@ from protocol.messages import BodyInfo, body_from_body_info
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 
+from ._contact_kernels import covered as covered_kernel
 from .collision import CapsuleTrack, round_cone_np
 
 __all__ = [
@@ -150,11 +151,18 @@ class AvatarKeys:
                 out[k, inside] += depth[inside, None] * n[inside, c[inside]]
         return out
 
-    def covered(self, points: F64, margin: float | F64) -> NDArray[np.bool_]:
+    def covered(self, points: F64, margin: float | F64, backend: str = "numba") -> NDArray[np.bool_]:
         """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``
         (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband.
 
-        ``margin`` is a distance in metres, or one per capsule ``(C,)``."""
+        ``margin`` is a distance in metres, or one per capsule ``(C,)``; ``backend="numpy"`` runs the
+        plain reference of the kernel."""
+        if backend == "numba":
+            res = np.empty(points.shape[1], dtype=bool)
+            reach = np.broadcast_to(np.asarray(margin, dtype=np.float64), (self.track.radii.shape[0],))
+            covered_kernel(np.ascontiguousarray(points, dtype=np.float64), self.track.a, self.track.b,
+                           self.track.radii, np.ascontiguousarray(reach), res)
+            return res
         out = np.zeros(points.shape[1], dtype=bool)
         for k in range(points.shape[0]):
             d, _, _ = round_cone_np(points[k], self.track.a[k], self.track.b[k], self.track.radii[:, 0],

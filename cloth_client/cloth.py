@@ -34,7 +34,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 
 from . import _kernels as K
-from .collision import CapsuleTrack, collide_np, interpolate_keys, max_relative_travel
+from .collision import CapsuleTrack, capsules_near, collide_np, interpolate_keys, max_relative_travel
 from .constraints import line_limit_np, long_range_attach_np, strain_limit_np
 from .garment import Garment
 
@@ -52,6 +52,8 @@ __all__ = [
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+#: Distance (m) beyond the cloth's reach within a step at which a capsule still counts as near it.
+NEAR_ALLOWANCE = 0.05
 
 
 @dataclass(frozen=True)
@@ -252,11 +254,19 @@ def initial_state(model: ClothModel, x: F64 | None = None, t: float = 0.0) -> Cl
     return ClothState(pos, np.zeros_like(pos), t)
 
 
-def plan_substeps(model: ClothModel, track: CapsuleTrack, dt: float) -> int:
-    """Number of substeps for a step of ``dt`` seconds with body motion ``track`` (see module doc)."""
+def plan_substeps(model: ClothModel, track: CapsuleTrack, dt: float, state: ClothState | None = None) -> int:
+    """Number of substeps for a step of ``dt`` seconds with body motion ``track`` (see module doc).
+
+    With ``state``, only capsules that can reach the cloth within the step count for the travel
+    limit (:func:`~cloth_client.collision.capsules_near`, with the cloth's fastest particle, a 5 cm
+    allowance and the margin): a hand flung overhead does not refine a skirt's substeps."""
     p = model.params
     limit_dt = min(p.max_substep_dt, model.stable_dt)
-    n = max(1, math.ceil(dt / limit_dt - 1e-9), math.ceil(max_relative_travel(track) / p.max_travel - 1e-9))
+    near = None
+    if state is not None and track.n_keys > 0:
+        speed = float(np.sqrt(np.einsum("ij,ij->i", state.v, state.v).max())) if len(state.v) else 0.0
+        near = capsules_near(track, state.x, speed * dt + NEAR_ALLOWANCE + p.margin)
+    n = max(1, math.ceil(dt / limit_dt - 1e-9), math.ceil(max_relative_travel(track, near) / p.max_travel - 1e-9))
     return int(min(n, max(p.max_substeps, math.ceil(dt / model.stable_dt - 1e-9))))
 
 
@@ -291,7 +301,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
     """
     if not dt > 0:
         raise ValueError(f"dt must be positive, got {dt}")
-    n = n_substeps if n_substeps is not None else plan_substeps(model, track, dt)
+    n = n_substeps if n_substeps is not None else plan_substeps(model, track, dt, state)
     x, v = state.x.copy(), state.v.copy()
     p = model.params
     pins = np.ascontiguousarray(pin_keys, dtype=np.float64)

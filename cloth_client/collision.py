@@ -47,6 +47,8 @@ from numpy.typing import NDArray
 
 __all__ = [
     "CapsuleTrack",
+    "broad_phase_np",
+    "capsules_near",
     "collide_np",
     "max_relative_travel",
     "penetration_np",
@@ -124,9 +126,15 @@ def interpolate_keys(keys: F64, s: float) -> F64:
     return out
 
 
-def max_relative_travel(track: CapsuleTrack) -> float:
+def max_relative_travel(track: CapsuleTrack, near: NDArray[np.bool_] | None = None) -> float:
     """Largest distance any capsule endpoint moves between two keys, in units of that capsule's
     smaller radius, times the number of key intervals (so it is comparable with one whole step).
+
+    Parameters
+    ----------
+    track : CapsuleTrack
+    near : (C,) bool, optional
+        Only these capsules count (see :func:`capsules_near`); default all.
 
     Returns
     -------
@@ -137,7 +145,25 @@ def max_relative_travel(track: CapsuleTrack) -> float:
     db = np.linalg.norm(np.diff(track.b, axis=0), axis=-1)
     rmin = track.radii.min(axis=1)
     rel = np.maximum(da, db) / rmin
+    if near is not None:
+        rel = rel[:, near]
     return float(rel.max() * (track.n_keys - 1)) if rel.size else 0.0
+
+
+def capsules_near(track: CapsuleTrack, x: F64, reach: float) -> NDArray[np.bool_]:
+    """Capsules that may touch the cloth during the step: their swept bounding box (over all keys,
+    grown by the larger radius) meets the bounding box of ``x (N, 3)`` grown by ``reach`` (metres;
+    how far the cloth can move within the step plus the clearance).
+
+    Returns
+    -------
+    (C,) bool
+    """
+    r = track.radii.max(axis=1)[:, None]
+    lo = np.minimum(track.a.min(axis=0), track.b.min(axis=0)) - r  # (C, 3)
+    hi = np.maximum(track.a.max(axis=0), track.b.max(axis=0)) + r
+    out: NDArray[np.bool_] = np.all((lo <= x.max(axis=0) + reach) & (hi >= x.min(axis=0) - reach), axis=1)
+    return out
 
 
 def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F64]:
@@ -202,6 +228,8 @@ def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F
 COLLISION_PASSES = 4
 #: Two contact normals with a cosine below this face each other: the cloth is in a crease.
 PINCH_COS = -0.3
+#: A particle closer than the clearance by less than this (metres) is on the surface, not in contact.
+HIT_TOLERANCE = 1e-9
 
 
 def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:
@@ -304,7 +332,7 @@ def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F
         moved = np.zeros_like(todo)
         for c in range(a1.shape[0]):
             d, nc, t = round_cone_np(x, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
-            hit = todo & (d[:, 0] < m)
+            hit = todo & (d[:, 0] < m - HIT_TOLERANCE)
             if not hit.any():
                 continue
             vs = (1.0 - t[:, :1]) * va[c] + t[:, :1] * vb[c]
@@ -313,7 +341,7 @@ def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F
             hold[upd], big[upd] = vs[upd], stout[c]
             moved |= hit
         if floor is not None:
-            hit = todo & (x[:, 1] < floor + margin)
+            hit = todo & (x[:, 1] < floor + margin - HIT_TOLERANCE)
             hit_surface(hit, a1.shape[0], floor + margin - x[:, 1], up, np.zeros_like(x))
             moved |= hit
         todo = moved
@@ -323,6 +351,35 @@ def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F
     held = pinched & (big > 0.0)
     v[held] = hold[held]
     return pinched
+
+
+def broad_phase_np(x: F64, free: NDArray[np.bool_], a: F64, b: F64, radii: F64, reach: float) -> NDArray[np.int64]:
+    """Candidate capsules of every particle as bit masks (reference of ``K.broad_phase``).
+
+    Parameters
+    ----------
+    x : (N, 3) float64
+    free : (N,) bool
+        Other particles get an empty mask.
+    a, b : (C, 3) float64
+        Capsule endpoints (C <= 62).
+    radii : (C, 2) float64
+    reach : float
+        Clearance plus slack, metres.
+
+    Returns
+    -------
+    (N,) int64
+        Bit ``c`` set where the particle is within ``reach`` of the capsule of radius
+        ``max(ra, rb)`` round the segment ``a[c] b[c]`` (a superset of the round cone).
+    """
+    u = b - a
+    t = np.clip(np.einsum("ncj,cj->nc", x[:, None] - a[None], u) / np.maximum(np.einsum("cj,cj->c", u, u), 1e-300),
+                0.0, 1.0)
+    q = x[:, None] - a[None] - t[..., None] * u[None]
+    near = (np.einsum("ncj,ncj->nc", q, q) < (radii.max(axis=1) + reach) ** 2) & free[:, None]
+    out: NDArray[np.int64] = (near.astype(np.int64) << np.arange(len(a), dtype=np.int64)).sum(axis=1)
+    return out
 
 
 def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:

@@ -134,6 +134,7 @@ class ClothDriver:
         self._free = self.model.inv_mass > 0
         self._first: tuple[F64, float] | None = None
         self._seam_margin = self._seam_reach()
+        self._body_end: tuple[F64, F64] | None = None
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -251,6 +252,7 @@ class ClothDriver:
             extra_damping = self.config.reset_damping * min(1.0, left)
         self.state = step(self.state, self.model, keys.track, pins, dt, released=released,
                           extra_damping=extra_damping)
+        self._body_end = (keys.track.a[-1], keys.track.b[-1])  # the capsules at p1, for _measure
         self._free = self.model.inv_mass > 0
         self._free[self.garment.pin_index[released]] = True
 
@@ -298,7 +300,7 @@ class ClothDriver:
 
     def _measure(self, pose: F64, t: float, substeps: int, reset: bool) -> FrameStats:
         assert self.state is not None
-        a, b = capsule_endpoints(self.body, pose)
+        a, b = self._body_end if self._body_end is not None else capsule_endpoints(self.body, pose)
         K.penetration(self.state.x, a, b, self.body.capsule_radii, self._free.astype(np.float64), self._depth)
         inside = self._depth > 0.0
         n_in = int(inside.sum())

@@ -11,6 +11,7 @@ from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import (
     CapsuleTrack,
+    broad_phase_np,
     collide_np,
     max_relative_travel,
     penetration_np,
@@ -32,7 +33,8 @@ def _collide(backend: str, x: np.ndarray, v: np.ndarray, a0: np.ndarray, b0: np.
     contact = np.zeros((len(x), 6))
     if backend == "numba":
         K.collide(x, v, np.ones(len(x)), a0, b0, a1, b1, radii, margin, friction, dt,
-                  0.0 if floor is None else floor, floor is not None, contact)
+                  0.0 if floor is None else floor, floor is not None, contact,
+                  np.full(len(x), K.ALL_CAPSULES), x.copy(), 0.0)
     else:
         collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact)
     return contact
@@ -266,3 +268,56 @@ def test_collar_moves_with_the_chest() -> None:
     keys = pose_keys(body, np.stack([pose, bent]))
     t = keys.pin_targets(g.pin_joint, g.pin_local)
     assert np.all(t[1, :, 2] > t[0, :, 2] + 0.05)  # the collar went forward with the torso
+
+
+def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
+    """The candidate masks agree with the reference, and collision restricted to the candidates
+    gives exactly the full result, also for particles that moved past the slack since the masks
+    were gathered (they fall back to every capsule)."""
+    body = default_body()
+    pose = standing_pose(body)
+    keys = pose_keys(body, np.stack([pose, pose]))
+    a, b, r = keys.track.a[0], keys.track.b[0], body.capsule_radii
+    rng = np.random.default_rng(11)
+    x = rng.uniform([-0.4, -0.05, -0.3], [0.4, 1.8, 0.3], size=(4000, 3))
+    free = rng.random(len(x)) > 0.1
+    margin, slack = 0.006, 0.02
+    cand, xb = np.empty(len(x), np.int64), np.empty_like(x)
+    K.broad_phase(x, free.astype(float), a, b, r, margin + slack, cand, xb)
+    np.testing.assert_array_equal(cand, broad_phase_np(x, free, a, b, r, margin + slack))
+    np.testing.assert_array_equal(xb, x)
+    assert 0 < (cand != 0).sum() < len(x) and (cand & (cand - 1) != 0).sum() > 50  # several capsules at joints
+    # then the particles move (half of them further than the slack) and the body moves a little
+    x1 = x + rng.normal(0.0, 0.012, x.shape)
+    a1, b1 = a + [0.0, 0.003, 0.0], b + [0.0, 0.003, 0.0]
+    v = rng.normal(0.0, 0.5, x.shape)
+    outs = []
+    for mask, ref in ((np.full(len(x), K.ALL_CAPSULES), xb), (cand, xb)):
+        xx, vv, contact = x1.copy(), v.copy(), np.zeros((len(x), 6))
+        K.collide(xx, vv, free.astype(float), a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, True, contact,
+                  mask, ref, slack - 0.003)  # the capsules moved 3 mm: the particles may move the rest
+        outs.append((xx, vv, contact))
+    xn, vn, cn = x1.copy(), v.copy(), np.zeros((len(x), 6))
+    collide_np(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn)
+    for xx, vv, contact in outs:
+        np.testing.assert_allclose(xx, xn, atol=1e-12)
+        np.testing.assert_allclose(vv, vn, atol=1e-9)
+        np.testing.assert_allclose(contact, cn, atol=1e-12)
+    assert np.abs(xn - x1).max() > 0.01  # contacts did happen
+
+
+def test_covered_kernel_matches_numpy() -> None:
+    body = default_body()
+    pose = standing_pose(body)
+    bent = pose.copy()
+    elbow = 3 + 3 * ROT_JOINTS.index("l_elbow")
+    bent[elbow:elbow + 3] = [0.0, 0.0, 1.2]
+    keys = pose_keys(body, np.stack([pose, bent, pose]))
+    rng = np.random.default_rng(2)
+    pts = rng.uniform([-0.4, 0.6, -0.3], [0.4, 1.5, 0.3], size=(3, 500, 3))
+    reach = np.full(len(body.capsule_radii), 0.006)
+    reach[::3] = 0.04
+    for m in (0.006, reach):
+        got, ref = keys.covered(pts, m), keys.covered(pts, m, backend="numpy")
+        np.testing.assert_array_equal(got, ref)
+        assert 20 < got.sum() < 480

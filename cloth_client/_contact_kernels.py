@@ -219,13 +219,35 @@ def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin:
 
 
 @_inline
+def _side(x: F64, i: int, d: float, nx: float, ny: float, nz: float, t: float, geo: F64, c: int, a0: F64, b0: F64,
+          a1: F64, b1: F64, xprev: F64) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """Keep particle ``i`` on the side of capsule ``c`` it came from.
+
+    ``xprev[i]`` (the particle at the start of the substep) is carried along with the capsule's
+    motion; if that point is outside the capsule and its normal faces away from ``n`` (the normal
+    of the nearest surface to the particle, inside the capsule), the particle went through the axis
+    within the substep (a limb pressed into cloth the strain limit holds back): it is put back at
+    the carried point and the distance, normal and axial parameter there are returned instead."""
+    qx = xprev[i, 0] + (1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])
+    qy = xprev[i, 1] + (1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])
+    qz = xprev[i, 2] + (1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])
+    dq, mx, my, mz, tq = round_cone_geo(qx, qy, qz, geo, c)
+    if dq > 0.0 and mx * nx + my * ny + mz * nz < 0.0:
+        x[i, 0], x[i, 1], x[i, 2] = qx, qy, qz
+        return dq, mx, my, mz, tq
+    return d, nx, ny, nz, t
+
+
+@_inline
 def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b0: F64, a1: F64, b1: F64,
              radii: F64, margin: float, friction: float, dt: float, floor: float, use_floor: bool, contact: F64,
-             scratch: F64, cand: NDArray[np.int64], xb: F64, slack: float) -> bool:  # pragma: no cover
+             scratch: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64) -> bool:  # pragma: no cover
     """Projection passes of particle ``i`` with clearance ``m`` from the capsules (``margin`` from the
     floor), then friction or, if pinched, the stoutest touched part's velocity; True if pinched.
     ``scratch (3, 3)``: normal, surface velocity, held velocity. Only the capsules in ``cand[i]``
-    are tested while the particle is within ``slack`` of ``xb[i]`` (every capsule otherwise)."""
+    are tested while the particle is within ``slack`` of ``xb[i]`` (every capsule otherwise).
+    A particle found past the capsule's axis from where it was at the start of the substep
+    (``xprev[i]`` carried along with the capsule) goes back to that side (:func:`_side`)."""
     n_caps = a1.shape[0]
     for o in range(6):
         contact[i, o] = 0.0
@@ -245,6 +267,7 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b
                 continue
             d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo, c)
             if d < m - HIT_TOLERANCE:
+                d, nx, ny, nz, t = _side(x, i, d, nx, ny, nz, t, geo, c, a0, b0, a1, b1, xprev)
                 vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
                 vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
                 vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
@@ -284,9 +307,10 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b
 @_jit
 def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
             margin: float, friction: float, dt: float, floor: float, use_floor: bool,
-            contact: F64, cand: NDArray[np.int64], xb: F64, slack: float) -> None:  # pragma: no cover
+            contact: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64) -> None:  # pragma: no cover
     """Project particles (those with ``active > 0``) out of the capsules ``(a1, b1)`` and the floor;
-    same rules as ``collide_np``.
+    same rules as ``collide_np``. ``xprev (N, 3)``: positions at the start of the substep (a
+    particle that went through a capsule's axis since is put back on its side).
 
     ``cand (N,)``, ``xb (N, 3)`` are a :func:`broad_phase` of ``(a1, b1)`` with reach
     ``margin + slack``: a particle within ``slack`` of ``xb[i]`` tests only its candidate
@@ -313,14 +337,14 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
         px, py, pz = x[i, 0], x[i, 1], x[i, 2]
         ux, uy, uz = v[i, 0], v[i, 1], v[i, 2]
         if not _resolve(x, v, i, margin, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor,
-                        use_floor, contact, scratch, cand, xb, slack):
+                        use_floor, contact, scratch, cand, xb, slack, xprev):
             continue
         m = pinch_margin(px, py, pz, geo, centre, margin)
         if m < margin:  # a crease: start again with the clearance the gap leaves
             x[i, 0], x[i, 1], x[i, 2] = px, py, pz
             v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
             _resolve(x, v, i, m, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor,
-                     contact, scratch, cand, xb, slack)
+                     contact, scratch, cand, xb, slack, xprev)
 
 
 @_inline

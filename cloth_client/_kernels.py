@@ -344,7 +344,7 @@ def simulate_substeps(
                     for d in range(3):
                         v[i, d] = (x[i, d] - xp[i, d]) / dt
             collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact,
-                    cand, xb, BROAD_SLACK)
+                    cand, xb, BROAD_SLACK, xp)
         # final rounds: strain limiting, then collision (with final_rounds == 0: one contact-aware strain
         # pass that slides contacts along their surfaces instead of into them, and no collision after it)
         for _r in range(max(final_rounds, 1)):
@@ -363,7 +363,7 @@ def simulate_substeps(
                     v[i, d] += (x[i, d] - f[i, d]) / dt
             if final_rounds > 0:  # friction was applied in the interleaved passes already
                 collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact,
-                        cand, xb, BROAD_SLACK)
+                        cand, xb, BROAD_SLACK, xp)
         for i in range(n):
             sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
             if sp > max_speed and inv_mass[i] > 0.0:

@@ -392,7 +392,7 @@ def _substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64,
             _line_pass(x, model, inv_mass, contact, p.limit_sweeps)
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
             v[free] = (x[free] - xp[free]) / dt
-            collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact)
+            collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact, xp)
         for _ in range(max(p.final_rounds, 1)):
             before = x.copy()
             if p.final_rounds > 0:
@@ -402,7 +402,7 @@ def _substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64,
                             1 if p.final_sweeps > 0 else 0, contact)
             v += (x - before) / dt
             if p.final_rounds > 0:  # friction was applied in the interleaved passes already
-                collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, 0.0, dt, p.floor, contact)
+                collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, 0.0, dt, p.floor, contact, xp)
         speed = np.linalg.norm(v, axis=1)
         fast = free & (speed > p.max_speed)
         v[fast] *= (p.max_speed / speed[fast])[:, None]

@@ -262,7 +262,7 @@ def _record(contact: F64, first: NDArray[np.int64], hit: NDArray[np.bool_], surf
 
 def collide_np(
     x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
-    margin: float, friction: float, dt: float, floor: float | None, contact: F64,
+    margin: float, friction: float, dt: float, floor: float | None, contact: F64, xprev: F64 | None = None,
 ) -> None:
     """Resolve contacts of particles with capsules (end-of-substep endpoints) and the floor, in place.
 
@@ -288,10 +288,14 @@ def collide_np(
     contact : (N, 6) float64
         Output: unit normals of the first and of another surface each particle was pushed off
         (zero where none).
+    xprev : (N, 3) float64, optional
+        Positions at the start of the substep (default ``x``): a particle found inside a capsule
+        past its axis from where it was (carried along with the capsule) is put back on that side.
     """
     x0, v0 = x.copy(), v.copy()
+    xp = x0 if xprev is None else xprev
     pinched = _resolve_np(x, v, free, a0, b0, a1, b1, radii, np.full(len(x), margin), margin, friction, dt, floor,
-                          contact)
+                          contact, xp)
     m = np.full(len(x), margin)
     m[pinched] = pinch_margin_np(x0[pinched], a1, b1, radii, margin)
     again = pinched & (m < margin)  # a crease: start again with the clearance the gap leaves
@@ -299,12 +303,14 @@ def collide_np(
         x[again], v[again] = x0[again], v0[again]
         sub = np.zeros((int(again.sum()), 6))
         xs, vs = x[again], v[again]
-        _resolve_np(xs, vs, np.ones(len(xs), bool), a0, b0, a1, b1, radii, m[again], margin, friction, dt, floor, sub)
+        _resolve_np(xs, vs, np.ones(len(xs), bool), a0, b0, a1, b1, radii, m[again], margin, friction, dt, floor, sub,
+                    xp[again])
         x[again], v[again], contact[again] = xs, vs, sub
 
 
 def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64, m: F64,
-                margin: float, friction: float, dt: float, floor: float | None, contact: F64) -> NDArray[np.bool_]:
+                margin: float, friction: float, dt: float, floor: float | None, contact: F64,
+                xprev: F64) -> NDArray[np.bool_]:
     """Projection passes with clearance ``m (N,)`` from the capsules and ``margin`` from the floor,
     then friction or the held velocity; returns which particles were pinched (reference of ``K._resolve``)."""
     contact[:] = 0.0
@@ -335,6 +341,12 @@ def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F
             hit = todo & (d[:, 0] < m - HIT_TOLERANCE)
             if not hit.any():
                 continue
+            # back to the side it came from if it went through the axis (reference of ``K._side``)
+            carried = xprev + (1.0 - t) * (a1[c] - a0[c]) + t * (b1[c] - b0[c])
+            dq, nq, tq = round_cone_np(carried, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+            back = hit & (dq[:, 0] > 0.0) & (np.einsum("ij,ij->i", nq[:, 0], nc[:, 0]) < 0.0)
+            x[back] = carried[back]
+            d[back], nc[back], t[back] = dq[back], nq[back], tq[back]
             vs = (1.0 - t[:, :1]) * va[c] + t[:, :1] * vb[c]
             hit_surface(hit, c, m - d[:, 0], nc[:, 0], vs)
             upd = hit & (stout[c] > big)

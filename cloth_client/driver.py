@@ -19,7 +19,9 @@ it ``(pose, time)`` pairs as they arrive:
   the garment's ``seam`` policy applies: a collar slides out onto the covering surface; a
   waistband lets the covered pins (a body part other than the one it is sewn round within
   ``seam_reach``) and their neighbours go for that step (they collide like free
-  cloth) unless most of it is covered, when it slides too;
+  cloth) unless more than ``slide_fraction`` of it is covered, when it slides too (pushing a
+  waistband's pins out to the nearest surface sends neighbours to opposite sides of a thigh: the
+  rest of the pins carries the garment meanwhile);
 * a non-finite value (never expected) re-dresses the garment and is counted.
 """
 
@@ -58,6 +60,7 @@ class DriverConfig:
     reset_calm_s: float = 0.3
     reset_damping: float = 6.0
     seam_reach: float = 0.04
+    slide_fraction: float = 0.8
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -242,7 +245,7 @@ class ClothDriver:
         g = self.garment
         pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
         released = self._widen(keys.covered(pins, self._seam_margin))
-        if self.garment.seam == "slide" or released.sum() > len(released) // 2:
+        if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
             # slide the seam over the body part that covers it (always for a collar; for a
             # waistband when most of it is covered, instead of letting the garment go)
             pins = keys.push_out(pins, self.model.params.margin)

@@ -29,14 +29,15 @@ B = np.array([[0.5, 0.0, 0.0]])
 
 def _collide(backend: str, x: np.ndarray, v: np.ndarray, a0: np.ndarray, b0: np.ndarray, a1: np.ndarray,
              b1: np.ndarray, radii: np.ndarray, margin: float, friction: float, dt: float,
-             floor: float | None = None) -> np.ndarray:
+             floor: float | None = None, xprev: np.ndarray | None = None) -> np.ndarray:
     contact = np.zeros((len(x), 6))
+    xp = x.copy() if xprev is None else xprev
     if backend == "numba":
         K.collide(x, v, np.ones(len(x)), a0, b0, a1, b1, radii, margin, friction, dt,
                   0.0 if floor is None else floor, floor is not None, contact,
-                  np.full(len(x), K.ALL_CAPSULES), x.copy(), 0.0)
+                  np.full(len(x), K.ALL_CAPSULES), x.copy(), 0.0, xp)
     else:
-        collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact)
+        collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact, xp)
     return contact
 
 
@@ -295,15 +296,35 @@ def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
     for mask, ref in ((np.full(len(x), K.ALL_CAPSULES), xb), (cand, xb)):
         xx, vv, contact = x1.copy(), v.copy(), np.zeros((len(x), 6))
         K.collide(xx, vv, free.astype(float), a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, True, contact,
-                  mask, ref, slack - 0.003)  # the capsules moved 3 mm: the particles may move the rest
+                  mask, ref, slack - 0.003, x)  # the capsules moved 3 mm: the particles may move the rest
         outs.append((xx, vv, contact))
     xn, vn, cn = x1.copy(), v.copy(), np.zeros((len(x), 6))
-    collide_np(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn)
+    collide_np(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn, x)
     for xx, vv, contact in outs:
         np.testing.assert_allclose(xx, xn, atol=1e-12)
         np.testing.assert_allclose(vv, vn, atol=1e-9)
         np.testing.assert_allclose(contact, cn, atol=1e-12)
     assert np.abs(xn - x1).max() > 0.01  # contacts did happen
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_particle_pushed_through_a_thin_capsule_goes_back_to_its_side(backend: str) -> None:
+    """A forearm (r = 3 cm) moving down 1 cm onto cloth that the strain limit dragged 4 cm down
+    inside it: projected to the nearest surface the cloth would come out below the arm (through
+    it); it is put back above, where it was relative to the arm at the start of the substep."""
+    r, dt, margin = np.array([[0.03, 0.03]]), 0.004, 0.006
+    a0, b0 = np.array([[0.0, 0.01, 0.0]]), np.array([[0.3, 0.01, 0.0]])
+    a1, b1 = a0 - [0.0, 0.01, 0.0], b0 - [0.0, 0.01, 0.0]
+    xprev = np.array([[0.15, 0.045, 0.0], [0.15, 0.045, 0.0]])  # 5 mm above the arm
+    x = np.array([[0.15, 0.005, 0.0], [0.15, -0.012, 0.0]])  # above / past the axis
+    v = np.array([[0.0, -3.0, 0.0], [0.0, -3.0, 0.0]])
+    _collide(backend, x, v, a0, b0, a1, b1, r, margin, 0.0, dt, xprev=xprev)
+    np.testing.assert_allclose(x[0], [0.15, 0.03 + margin, 0.0], atol=1e-12)  # nearest surface: above anyway
+    np.testing.assert_allclose(x[1], [0.15, 0.03 + margin, 0.0], atol=1e-12)  # not below the arm
+    np.testing.assert_allclose(v[:, 1], -2.5, atol=1e-9)  # no faster than the arm (-2.5 m/s) into it
+    x = np.array([[0.15, -0.012, 0.0]])
+    _collide(backend, x, v[:1].copy(), a0, b0, a1, b1, r, margin, 0.0, dt)  # no memory: nearest surface
+    np.testing.assert_allclose(x[0], [0.15, -0.03 - margin, 0.0], atol=1e-12)
 
 
 def test_covered_kernel_matches_numpy() -> None:

@@ -1,7 +1,8 @@
 """Numba kernels for cloth-vs-body contact: round-cone geometry, collision response, penetration.
 
-The plain numpy references are in :mod:`cloth_client.collision` (same rules, vectorised); a test
-checks that both agree. :mod:`cloth_client._kernels` runs :func:`collide` inside its substep loop.
+The plain numpy references are in :mod:`cloth_client.collision` and :mod:`cloth_client.contact`
+(same rules, vectorised); tests check that both agree. :mod:`cloth_client._kernels` runs
+:func:`collide` inside its substep loop.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from numba import njit
 from numpy.typing import NDArray
 
 __all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "broad_phase",
-           "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration", "pinch_margin", "round_cone", "round_cone_geo"]
+           "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration", "pinch_margin",
+           "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -374,17 +376,15 @@ def penetration(x: F64, a: F64, b: F64, radii: F64, inv_mass: F64, out: F64) -> 
 
 @_jit
 def covered(points: F64, a: F64, b: F64, radii: F64, reach: F64, out: NDArray[np.bool_]) -> None:  # pragma: no cover
-    """``out[p]`` = point ``p`` lies within ``reach[c]`` of some capsule ``c`` at some key
-    (reference: ``AvatarKeys.covered`` with ``backend="numpy"``).
+    """``out[p]``: point ``p`` is within ``reach[c]`` metres of some capsule ``c`` (endpoints per
+    key in ``a, b``) at some key (reference: ``AvatarKeys.covered(..., backend="numpy")``).
 
     Parameters
     ----------
     points : (K + 1, P, 3) float64
     a, b : (K + 1, C, 3) float64
-        Capsule endpoints per key.
     radii : (C, 2) float64
     reach : (C,) float64
-        Distance per capsule, metres.
     out : (P,) bool
     """
     geo = np.empty((a.shape[1], _GEO_COLS))

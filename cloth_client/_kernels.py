@@ -1,12 +1,14 @@
 """Numba kernels for the cloth solver's hot loops.
 
-Each kernel has a plain numpy reference beside the code that uses it (``cloth.py``: spring, drag
-and integration steps; ``constraints.py``: long-range attachments, line solves and Gauss-Seidel
-strain limiting; ``collision.py``: round-cone distance, collision response, penetration - the
-contact kernels themselves live in :mod:`cloth_client._contact_kernels`) and a test checks that
-both give the same numbers. The kernels
-work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps` runs
-all substeps of one cloth step without returning to Python.
+Each kernel has a plain numpy reference (:mod:`cloth_client.reference`: spring, drag, integration,
+long-range attachments, line solves, Gauss-Seidel strain limiting and the whole substep;
+:mod:`cloth_client.collision` and :mod:`cloth_client.contact`: round-cone distance, broad phase,
+collision response, penetration - the contact kernels themselves live in
+:mod:`cloth_client._contact_kernels`) and a test checks that both give the same numbers. The
+kernels work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps`
+runs all substeps of one cloth step without returning to Python. Small helpers called per particle
+or per spring are compiled inline into their callers (a call with array arguments costs more than
+the work they do).
 """
 
 from __future__ import annotations

@@ -9,15 +9,8 @@ import pytest
 from cloth_client import _kernels as K
 from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
-from cloth_client.collision import (
-    CapsuleTrack,
-    broad_phase_np,
-    collide_np,
-    max_relative_travel,
-    penetration_np,
-    pinch_margin_np,
-    round_cone_np,
-)
+from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
+from cloth_client.contact import broad_phase_np, collide_np, pinch_margin_np
 from cloth_client.garment import make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
@@ -290,7 +283,8 @@ def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
     assert 0 < (cand != 0).sum() < len(x) and (cand & (cand - 1) != 0).sum() > 50  # several capsules at joints
     # then the particles move (half of them further than the slack) and the body moves a little
     x1 = x + rng.normal(0.0, 0.012, x.shape)
-    a1, b1 = a + [0.0, 0.003, 0.0], b + [0.0, 0.003, 0.0]
+    lift = np.array([0.0, 0.003, 0.0])
+    a1, b1 = a + lift, b + lift
     v = rng.normal(0.0, 0.5, x.shape)
     outs = []
     for mask, ref in ((np.full(len(x), K.ALL_CAPSULES), xb), (cand, xb)):

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk_global
 from protocol.messages import BodyInfo, body_from_body_info
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
-from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
+from protocol.skeleton import CAPSULE_INDEX, CAPSULE_JOINTS, POSE_SIZE, Body
 
 from ._contact_kernels import covered as covered_kernel
 from .collision import CapsuleTrack, round_cone_np
@@ -32,6 +32,7 @@ __all__ = [
     "capsule_endpoints",
     "interpolate_poses",
     "is_discontinuity",
+    "limb_overlap",
     "pose_keys",
     "rigid_root_delta",
 ]
@@ -231,3 +232,43 @@ def rigid_root_delta(p0: F64, p1: F64) -> tuple[F64, F64]:
     r1 = rotvec_to_matrix(p1[3:6])
     rot: F64 = r1 @ r0.T
     return rot, p1[:3] - rot @ p0[:3]
+
+
+#: Capsules that can sink into the body in a recording (forearms, hands) and the capsules they sink
+#: into (pelvis, abdomen, thorax, thighs); see :func:`limb_overlap`.
+LIMBS = np.array([CAPSULE_INDEX[n] for n in ("l_forearm", "l_hand", "r_forearm", "r_hand")])
+TRUNK = np.array([CAPSULE_INDEX[n] for n in ("pelvis", "abdomen", "thorax", "l_thigh", "r_thigh")])
+
+
+def limb_overlap(track: CapsuleTrack, limbs: NDArray[np.int64] = LIMBS, trunk: NDArray[np.int64] = TRUNK,
+                 samples: int = 9) -> F64:
+    """How deep each limb capsule's surface sinks into the trunk capsules during a step.
+
+    Parameters
+    ----------
+    track : CapsuleTrack
+        The body over the step, ``K + 1`` keys.
+    limbs, trunk : (L,), (T,) int64
+        Capsule indices.
+    samples : int
+        Points sampled along each limb's axis.
+
+    Returns
+    -------
+    (L,) float64
+        Largest ``r_limb(s) - d_trunk(s)`` over the keys, the axis samples ``s`` and the trunk
+        capsules, metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0
+        when the two surfaces overlap by that much, e.g. a forearm swung through the hips.
+    """
+    s = np.linspace(0.0, 1.0, samples)
+    ra, rb = track.radii[limbs, 0], track.radii[limbs, 1]
+    r = (1.0 - s)[None, :] * ra[:, None] + s[None, :] * rb[:, None]  # (L, S)
+    la, lb = track.a[:, limbs], track.b[:, limbs]  # (K+1, L, 3)
+    pts = la[:, :, None] + s[None, None, :, None] * (lb - la)[:, :, None]  # (K+1, L, S, 3)
+    out = np.full(len(limbs), -np.inf)
+    for k in range(track.a.shape[0]):  # a few keys per step; points x capsules vectorised
+        d, _, _ = round_cone_np(pts[k].reshape(-1, 3), track.a[k, trunk], track.b[k, trunk],
+                                track.radii[trunk, 0], track.radii[trunk, 1])
+        depth = r.reshape(-1) - d.min(axis=1)
+        out = np.maximum(out, depth.reshape(len(limbs), samples).max(axis=1))
+    return out

@@ -37,15 +37,25 @@ from numpy.typing import NDArray
 from protocol.skeleton import Body
 
 from . import _kernels as K
-from .avatar import Continuity, capsule_endpoints, interpolate_poses, is_discontinuity, pose_keys, rigid_root_delta
+from .avatar import (
+    LIMBS,
+    Continuity,
+    capsule_endpoints,
+    interpolate_poses,
+    is_discontinuity,
+    limb_overlap,
+    pose_keys,
+    rigid_root_delta,
+)
 from .cloth import ClothModel, ClothParams, ClothState, build_model, energy, initial_state, step, structural_strain
-from .collision import round_cone_np
+from .collision import CapsuleTrack, round_cone_np
 from .garment import Garment
 
 __all__ = ["ClothDriver", "DriverConfig", "FrameStats", "RunStats"]
 
 log = logging.getLogger(__name__)
 F64 = NDArray[np.float64]
+GHOST_RADIUS = 1e-3  # radius of a limb that is sunk into the trunk (m); see ClothDriver._ghosted
 
 
 @dataclass(frozen=True)
@@ -61,6 +71,8 @@ class DriverConfig:
     reset_damping: float = 6.0
     seam_reach: float = 0.04
     slide_fraction: float = 0.8
+    ghost_depth: float = 0.02
+    ghost_clear: float = -0.03
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -138,6 +150,7 @@ class ClothDriver:
         self._first: tuple[F64, float] | None = None
         self._seam_margin = self._seam_reach()
         self._body_end: tuple[F64, F64] | None = None
+        self._ghost = np.zeros(len(LIMBS), dtype=bool)
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -253,11 +266,28 @@ class ClothDriver:
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s
             extra_damping = self.config.reset_damping * min(1.0, left)
-        self.state = step(self.state, self.model, keys.track, pins, dt, released=released,
+        self.state = step(self.state, self.model, self._ghosted(keys.track), pins, dt, released=released,
                           extra_damping=extra_damping)
         self._body_end = (keys.track.a[-1], keys.track.b[-1])  # the capsules at p1, for _measure
         self._free = self.model.inv_mass > 0
         self._free[self.garment.pin_index[released]] = True
+
+    def _ghosted(self, track: CapsuleTrack) -> CapsuleTrack:
+        """``track`` with the forearms and hands that are sunk into the trunk shrunk to a line.
+
+        A limb whose surface sinks more than ``ghost_depth`` into the trunk's (a forearm swung
+        through the hips, a hand pressed into the belly: a pose no body can take, or the capsules'
+        crudeness) no longer pushes the cloth until it is clear of the trunk again (``ghost_clear``):
+        the cloth stays on the trunk under it instead of being squeezed into the overlap, dragged
+        into the body with the limb and left with the limb inside the garment."""
+        cfg = self.config
+        depth = limb_overlap(track)
+        self._ghost = np.where(self._ghost, depth > cfg.ghost_clear, depth > cfg.ghost_depth)
+        if not self._ghost.any():
+            return track
+        radii = track.radii.copy()
+        radii[LIMBS[self._ghost]] = GHOST_RADIUS
+        return CapsuleTrack(track.a, track.b, radii)
 
     def _seam_reach(self) -> F64:
         """Per-capsule distance ``(C,)`` at which a body part counts as covering a seam pin.

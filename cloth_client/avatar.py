@@ -240,14 +240,16 @@ LIMBS = np.array([CAPSULE_INDEX[n] for n in ("l_forearm", "l_hand", "r_forearm",
 TRUNK = np.array([CAPSULE_INDEX[n] for n in ("pelvis", "abdomen", "thorax", "l_thigh", "r_thigh")])
 
 
-def limb_overlap(track: CapsuleTrack, limbs: NDArray[np.int64] = LIMBS, trunk: NDArray[np.int64] = TRUNK,
-                 samples: int = 9) -> F64:
-    """How deep each limb capsule's surface sinks into the trunk capsules during a step.
+def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
+                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9) -> F64:
+    """How deep each limb capsule's surface sinks into the trunk capsules in one pose.
 
     Parameters
     ----------
-    track : CapsuleTrack
-        The body over the step, ``K + 1`` keys.
+    a, b : (C, 3) float64
+        Capsule endpoints, metres.
+    radii : (C, 2) float64
+        Capsule radii at ``a`` and ``b``.
     limbs, trunk : (L,), (T,) int64
         Capsule indices.
     samples : int
@@ -256,19 +258,13 @@ def limb_overlap(track: CapsuleTrack, limbs: NDArray[np.int64] = LIMBS, trunk: N
     Returns
     -------
     (L,) float64
-        Largest ``r_limb(s) - d_trunk(s)`` over the keys, the axis samples ``s`` and the trunk
-        capsules, metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0
-        when the two surfaces overlap by that much, e.g. a forearm swung through the hips.
+        Largest ``r_limb(s) - d_trunk(s)`` over the axis samples ``s`` and the trunk capsules,
+        metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0 when the
+        two surfaces overlap by that much, e.g. a forearm swung through the hips.
     """
     s = np.linspace(0.0, 1.0, samples)
-    ra, rb = track.radii[limbs, 0], track.radii[limbs, 1]
-    r = (1.0 - s)[None, :] * ra[:, None] + s[None, :] * rb[:, None]  # (L, S)
-    la, lb = track.a[:, limbs], track.b[:, limbs]  # (K+1, L, 3)
-    pts = la[:, :, None] + s[None, None, :, None] * (lb - la)[:, :, None]  # (K+1, L, S, 3)
-    out = np.full(len(limbs), -np.inf)
-    for k in range(track.a.shape[0]):  # a few keys per step; points x capsules vectorised
-        d, _, _ = round_cone_np(pts[k].reshape(-1, 3), track.a[k, trunk], track.b[k, trunk],
-                                track.radii[trunk, 0], track.radii[trunk, 1])
-        depth = r.reshape(-1) - d.min(axis=1)
-        out = np.maximum(out, depth.reshape(len(limbs), samples).max(axis=1))
-    return out
+    r = (1.0 - s)[None, :] * radii[limbs, 0][:, None] + s[None, :] * radii[limbs, 1][:, None]  # (L, S)
+    pts = a[limbs][:, None] + s[None, :, None] * (b[limbs] - a[limbs])[:, None]  # (L, S, 3)
+    d, _, _ = round_cone_np(pts.reshape(-1, 3), a[trunk], b[trunk], radii[trunk, 0], radii[trunk, 1])
+    depth: F64 = (r.reshape(-1) - d.min(axis=1)).reshape(len(limbs), samples).max(axis=1)
+    return depth

@@ -151,6 +151,7 @@ class ClothDriver:
         self._seam_margin = self._seam_reach()
         self._body_end: tuple[F64, F64] | None = None
         self._ghost = np.zeros(len(LIMBS), dtype=bool)
+        self._overlap: F64 | None = None
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -277,11 +278,14 @@ class ClothDriver:
 
         A limb whose surface sinks more than ``ghost_depth`` into the trunk's (a forearm swung
         through the hips, a hand pressed into the belly: a pose no body can take, or the capsules'
-        crudeness) no longer pushes the cloth until it is clear of the trunk again (``ghost_clear``):
+        crudeness) at the start or end of the step no longer pushes the cloth (it keeps a
+        ``GHOST_RADIUS``) until it is clear of the trunk again (``ghost_clear``, a gap when negative):
         the cloth stays on the trunk under it instead of being squeezed into the overlap, dragged
         into the body with the limb and left with the limb inside the garment."""
         cfg = self.config
-        depth = limb_overlap(track)
+        end = limb_overlap(track.a[-1], track.b[-1], track.radii)  # the start is the previous step's end
+        depth = end if self._overlap is None else np.maximum(end, self._overlap)
+        self._overlap = end
         self._ghost = np.where(self._ghost, depth > cfg.ghost_clear, depth > cfg.ghost_depth)
         if not self._ghost.any():
             return track

@@ -254,9 +254,9 @@ def test_skirt_strain_stays_low_while_a_forearm_swings_through_the_hips(rate: fl
 def test_limb_overlap_of_a_forearm_swung_through_the_hips() -> None:
     from cloth_client.avatar import LIMBS, limb_overlap
 
-    keys = pose_keys(BODY, _dance(np.array([0.0, 0.25])))  # standing, then the arm out to the side
-    assert np.all(limb_overlap(keys.track) < 0.0)
-    keys = pose_keys(BODY, _dance(np.array([0.5, 0.6])))  # swinging through the pelvis
-    depth = limb_overlap(keys.track)
+    radii = BODY.capsule_radii
+    for ti in (0.0, 0.25):  # standing, then the arm out to the side
+        assert np.all(limb_overlap(*capsule_endpoints(BODY, _dance(np.array([ti]))[0]), radii) < 0.0)
+    depth = limb_overlap(*capsule_endpoints(BODY, _dance(np.array([0.6]))[0]), radii)  # through the pelvis
     i = list(LIMBS).index(CAPSULE_INDEX["l_forearm"])
     assert depth[i] > 0.10 and depth[list(LIMBS).index(CAPSULE_INDEX["r_forearm"])] < 0.0

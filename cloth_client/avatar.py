@@ -235,7 +235,7 @@ def rigid_root_delta(p0: F64, p1: F64) -> tuple[F64, F64]:
 
 
 #: Capsules that can sink into the body in a recording (forearms, hands) and the capsules they sink
-#: into (pelvis, abdomen, thorax, thighs); see :func:`limb_overlap`.
+#: into (pelvis, abdomen, thorax, thighs); see :func:`limb_overlap`. LIMBS is (forearm, hand) per side.
 LIMBS = np.array([CAPSULE_INDEX[n] for n in ("l_forearm", "l_hand", "r_forearm", "r_hand")])
 TRUNK = np.array([CAPSULE_INDEX[n] for n in ("pelvis", "abdomen", "thorax", "l_thigh", "r_thigh")])
 

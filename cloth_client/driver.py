@@ -47,7 +47,17 @@ from .avatar import (
     pose_keys,
     rigid_root_delta,
 )
-from .cloth import ClothModel, ClothParams, ClothState, build_model, energy, initial_state, step, structural_strain
+from .cloth import (
+    ClothModel,
+    ClothParams,
+    ClothState,
+    build_model,
+    energy,
+    initial_state,
+    plan_substeps,
+    step,
+    structural_strain,
+)
 from .collision import CapsuleTrack, round_cone_np
 from .garment import Garment
 
@@ -267,8 +277,10 @@ class ClothDriver:
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s
             extra_damping = self.config.reset_damping * min(1.0, left)
+        # substeps planned on the real limbs: a sunk limb's thin stand-in would count as fast
+        n_sub = plan_substeps(self.model, keys.track, dt, self.state)
         self.state = step(self.state, self.model, self._ghosted(keys.track), pins, dt, released=released,
-                          extra_damping=extra_damping)
+                          n_substeps=n_sub, extra_damping=extra_damping)
         self._body_end = (keys.track.a[-1], keys.track.b[-1])  # the capsules at p1, for _measure
         self._free = self.model.inv_mass > 0
         self._free[self.garment.pin_index[released]] = True
@@ -281,12 +293,14 @@ class ClothDriver:
         crudeness) at the start or end of the step no longer pushes the cloth (it keeps a
         ``GHOST_RADIUS``) until it is clear of the trunk again (``ghost_clear``, a gap when negative):
         the cloth stays on the trunk under it instead of being squeezed into the overlap, dragged
-        into the body with the limb and left with the limb inside the garment."""
+        into the body with the limb and left with the limb inside the garment. The forearm and the
+        hand of a side go together (a hand left active at a sunk wrist wedges cloth into the crease)."""
         cfg = self.config
         end = limb_overlap(track.a[-1], track.b[-1], track.radii)  # the start is the previous step's end
         depth = end if self._overlap is None else np.maximum(end, self._overlap)
         self._overlap = end
-        self._ghost = np.where(self._ghost, depth > cfg.ghost_clear, depth > cfg.ghost_depth)
+        ghost = np.where(self._ghost, depth > cfg.ghost_clear, depth > cfg.ghost_depth)
+        self._ghost = ghost.reshape(-1, 2).any(axis=1).repeat(2)  # forearm and hand of a side together
         if not self._ghost.any():
             return track
         radii = track.radii.copy()

@@ -4,6 +4,7 @@ shared recording. Takes minutes; it is not a test.
     .venv/bin/python bench/bench_cloth.py                 # everything (speed + full sweep, both garments)
     .venv/bin/python bench/bench_cloth.py --skip-sweep    # speed only (about a minute)
     .venv/bin/python bench/bench_cloth.py --limit 20      # sweep only the first 20 recordings
+    .venv/bin/python bench/bench_cloth.py --skip-sweep --rt-particles 2000 --out out/bench_cloth/speed.json
 
 Results are printed as Markdown and written to ``out/bench_cloth/results.json``.
 
@@ -62,9 +63,9 @@ def _substeps_per_s(side: int, params: ClothParams, seconds: float = 3.0) -> flo
     return done / (time.perf_counter() - t0)
 
 
-def speed() -> dict[str, Any]:
-    """Substeps/s on free sheets and real-time factors with collision."""
-    bare = ClothParams(limit_iterations=0, final_sweeps=0, air_density=0.0, floor=None, tethers=False)
+def speed(rt_particles: tuple[int, ...] = (2000, 5000)) -> dict[str, Any]:
+    """Substeps/s on free sheets and real-time factors with collision (garments of ``rt_particles``)."""
+    bare = ClothParams(limit_iterations=0, final_sweeps=0, final_rounds=0, air_density=0.0, floor=None, tethers=False)
     full = ClothParams(floor=None)
     out: dict[str, Any] = {"free_sheet": []}
     for side in (48, 64):
@@ -76,7 +77,7 @@ def speed() -> dict[str, Any]:
     motion = load_motion(mocap_root() / RT_RECORDING, fps=60.0)  # 60 Hz input, as in the target
     out["realtime"] = []
     for garment in ("cape", "skirt"):
-        for n in (2000, 5000):
+        for n in rt_particles:
             r = simulate_motion(motion, garment, particles=n, max_frames=1200)  # 20 s
             row = {k: r[k] for k in ("garment", "particles", "realtime_factor", "steps_per_s", "sim_time_s",
                                      "max_penetration_mm", "max_strain")}
@@ -143,13 +144,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="sweep only the N longest recordings")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-sweep", action="store_true")
+    ap.add_argument("--rt-particles", default="2000,5000", help="garment sizes for the real-time factor")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_cloth" / "results.json"))
     args = ap.parse_args(argv)
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                        "processor": platform.processor() or platform.machine()}}
     if not args.skip_speed:
         print("speed:", flush=True)
-        res["speed"] = speed()
+        res["speed"] = speed(tuple(int(n) for n in args.rt_particles.split(",")))
     if not args.skip_sweep:
         print("sweep:", flush=True)
         res["sweep"] = sweep(args.garments.split(","), args.particles, args.jobs, args.limit)

@@ -1,7 +1,8 @@
 """Numba kernels for cloth-vs-body contact: round-cone geometry, collision response, penetration.
 
-The plain numpy references are in :mod:`cloth_client.collision` (same rules, vectorised); a test
-checks that both agree. :mod:`cloth_client._kernels` runs :func:`collide` inside its substep loop.
+The plain numpy references are in :mod:`cloth_client.collision` and :mod:`cloth_client.contact`
+(same rules, vectorised); tests check that both agree. :mod:`cloth_client._kernels` runs
+:func:`collide` inside its substep loop.
 """
 
 from __future__ import annotations
@@ -12,19 +13,34 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["COLLISION_PASSES", "capsule_geometry", "collide", "jit_kernel", "penetration", "round_cone",
-           "round_cone_geo"]
+__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "broad_phase",
+           "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration", "pinch_margin",
+           "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
 #: flags that keep NaN/inf semantics, so a blow-up still shows as NaN instead of being optimised away.
 jit_kernel = njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 _jit = jit_kernel
+#: The same compiled inline into its callers (small helpers called per particle: no call overhead).
+inline_kernel = njit(cache=True, inline="always", error_model="numpy",
+                     fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+_inline = inline_kernel
 
 #: Most projection passes over the capsules per particle (only particles moved in a pass get another).
 COLLISION_PASSES = 4
+#: Two contact normals with a cosine below this face each other: the cloth is in a crease.
+PINCH_COS = -0.3
 #: Columns of the per-capsule geometry table built by :func:`capsule_geometry`.
 _GEO_COLS = 13
+#: A particle closer than the clearance by less than this (metres) counts as on the surface, not in
+#: contact (a projected particle re-measured at the clearance must not trigger another pass).
+HIT_TOLERANCE = 1e-9
+#: Candidate mask meaning "test every capsule" (all bits set).
+ALL_CAPSULES = -1
+#: Distance (metres) a particle may move from where its candidate capsules were gathered
+#: (:func:`broad_phase`) before :func:`collide` tests every capsule again for it.
+BROAD_SLACK = 0.02
 
 
 @_jit
@@ -54,27 +70,27 @@ def capsule_geometry(a: F64, b: F64, radii: F64, margin: float, geo: F64) -> Non
         geo[c, 9], geo[c, 10], geo[c, 12] = ra, rb, 0.0
 
 
-@_jit
-def round_cone_geo(px: float, py: float, pz: float,
-                   g: F64) -> tuple[float, float, float, float, float]:  # pragma: no cover
+@_inline
+def round_cone_geo(px: float, py: float, pz: float, geo: F64,
+                   c: int) -> tuple[float, float, float, float, float]:  # pragma: no cover
     """Signed distance, outward normal (nx, ny, nz) and axial parameter t of a point to the round
-    cone described by one row ``g`` of :func:`capsule_geometry`."""
-    pax, pay, paz = px - g[0], py - g[1], pz - g[2]
-    if g[12] > 0.5:  # a single sphere; g[10] holds t
+    cone described by row ``c`` of :func:`capsule_geometry`'s table ``geo``."""
+    pax, pay, paz = px - geo[c, 0], py - geo[c, 1], pz - geo[c, 2]
+    if geo[c, 12] > 0.5:  # a single sphere; geo[c, 10] holds t
         dq = math.sqrt(pax * pax + pay * pay + paz * paz)
         if dq < 1e-12:
-            return -g[9], 0.0, 1.0, 0.0, g[10]
-        return dq - g[9], pax / dq, pay / dq, paz / dq, g[10]
-    ux, uy, uz, length, sin_phi, cos_phi = g[3], g[4], g[5], g[6], g[7], g[8]
+            return -geo[c, 9], 0.0, 1.0, 0.0, geo[c, 10]
+        return dq - geo[c, 9], pax / dq, pay / dq, paz / dq, geo[c, 10]
+    ux, uy, uz, length, sin_phi, cos_phi = geo[c, 3], geo[c, 4], geo[c, 5], geo[c, 6], geo[c, 7], geo[c, 8]
     y = pax * ux + pay * uy + paz * uz
     wx, wy, wz = pax - y * ux, pay - y * uy, paz - y * uz
     rho = math.sqrt(wx * wx + wy * wy + wz * wz)
     tau = y * cos_phi - rho * sin_phi
     if tau < 0.0 or tau > length * cos_phi:
         if tau < 0.0:
-            qx, qy, qz, r, t = pax, pay, paz, g[9], 0.0
+            qx, qy, qz, r, t = pax, pay, paz, geo[c, 9], 0.0
         else:
-            qx, qy, qz, r, t = pax - length * ux, pay - length * uy, paz - length * uz, g[10], 1.0
+            qx, qy, qz, r, t = pax - length * ux, pay - length * uy, paz - length * uz, geo[c, 10], 1.0
         dq = math.sqrt(qx * qx + qy * qy + qz * qz)
         if dq > 1e-12:
             return dq - r, qx / dq, qy / dq, qz / dq, t
@@ -88,10 +104,10 @@ def round_cone_geo(px: float, py: float, pz: float,
         wx, wy, wz = wx / wn, wy / wn, wz / wn
     nx, ny, nz = sin_phi * ux + cos_phi * wx, sin_phi * uy + cos_phi * wy, sin_phi * uz + cos_phi * wz
     if tau < 0.0:
-        return -g[9], nx, ny, nz, 0.0
+        return -geo[c, 9], nx, ny, nz, 0.0
     if tau > length * cos_phi:
-        return -g[10], nx, ny, nz, 1.0
-    return y * sin_phi + rho * cos_phi - g[9], nx, ny, nz, min(max(y / length, 0.0), 1.0)
+        return -geo[c, 10], nx, ny, nz, 1.0
+    return y * sin_phi + rho * cos_phi - geo[c, 9], nx, ny, nz, min(max(y / length, 0.0), 1.0)
 
 
 @_jit
@@ -102,10 +118,52 @@ def round_cone(px: float, py: float, pz: float, a: F64, b: F64, ra: float,
     radii = np.empty((1, 2))
     radii[0, 0], radii[0, 1] = ra, rb
     capsule_geometry(a.reshape(1, 3), b.reshape(1, 3), radii, 0.0, geo)
-    return round_cone_geo(px, py, pz, geo[0])
+    return round_cone_geo(px, py, pz, geo, 0)
 
 
 @_jit
+def broad_phase(x: F64, active: F64, a: F64, b: F64, radii: F64, reach: float, cand: NDArray[np.int64],
+                xb: F64) -> None:  # pragma: no cover
+    """Candidate capsules of every particle: bit ``c`` of ``cand[i]`` is set when particle ``i``
+    lies within ``reach`` of the capsule ``c`` of radius ``max(ra, rb)`` round the axis ``a[c] b[c]``
+    (which contains the round cone). ``xb`` receives the positions the mask was gathered at.
+
+    Parameters
+    ----------
+    x : (N, 3) float64
+    active : (N,) float64
+        Particles with ``active <= 0`` get an empty mask.
+    a, b : (C, 3) float64
+    radii : (C, 2) float64
+    reach : float
+        Clearance plus slack, metres.
+    cand : (N,) int64
+        Output bit masks (:data:`ALL_CAPSULES` for every particle when ``C > 62``).
+    xb : (N, 3) float64
+        Output copy of ``x``.
+    """
+    n = x.shape[0]
+    for i in range(n):
+        cand[i] = 0 if a.shape[0] <= 62 else ALL_CAPSULES
+        xb[i, 0], xb[i, 1], xb[i, 2] = x[i, 0], x[i, 1], x[i, 2]
+    if a.shape[0] > 62:
+        return
+    for c in range(a.shape[0]):
+        ax, ay, az = a[c, 0], a[c, 1], a[c, 2]
+        ux, uy, uz = b[c, 0] - ax, b[c, 1] - ay, b[c, 2] - az
+        inv = 1.0 / max(ux * ux + uy * uy + uz * uz, 1e-300)
+        r = max(radii[c, 0], radii[c, 1]) + reach
+        r2 = r * r
+        bit = np.int64(1) << np.int64(c)
+        for i in range(n):
+            px, py, pz = x[i, 0] - ax, x[i, 1] - ay, x[i, 2] - az
+            t = min(max((px * ux + py * uy + pz * uz) * inv, 0.0), 1.0)
+            qx, qy, qz = px - t * ux, py - t * uy, pz - t * uz
+            if qx * qx + qy * qy + qz * qz < r2 and active[i] > 0.0:
+                cand[i] |= bit
+
+
+@_inline
 def _push(x: F64, v: F64, i: int, push: float, nx: float, ny: float, nz: float,
           vsx: float, vsy: float, vsz: float) -> float:  # pragma: no cover
     """Move particle ``i`` by ``push`` along ``n`` and cancel its approach to the surface moving at
@@ -122,7 +180,7 @@ def _push(x: F64, v: F64, i: int, push: float, nx: float, ny: float, nz: float,
     return -vn
 
 
-@_jit
+@_inline
 def _friction(v: F64, i: int, n: F64, vs: F64, dvn: float, friction: float) -> None:  # pragma: no cover
     """Coulomb friction: reduce the tangential velocity relative to the surface by ``friction * dvn``."""
     rx, ry, rz = v[i, 0] - vs[0], v[i, 1] - vs[1], v[i, 2] - vs[2]
@@ -138,66 +196,160 @@ def _friction(v: F64, i: int, n: F64, vs: F64, dvn: float, friction: float) -> N
 
 
 @_jit
-def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
-            margin: float, friction: float, dt: float, floor: float, use_floor: bool,
-            contact: F64) -> None:  # pragma: no cover
-    """Project particles (those with ``active > 0``) out of the capsules ``(a1, b1)`` and the floor;
-    same rules as ``collide_np``.
+def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin: float) -> float:  # pragma: no cover
+    """Clearance a particle at ``p`` can keep from the body: ``margin``, or less in a crease.
 
-    ``contact (N, 6)`` receives the normals of the first and of another surface each particle was
-    pushed off (zero where none). Friction acts on particles that touch a single surface only."""
-    n_caps = a1.shape[0]
-    geo = np.empty((n_caps, _GEO_COLS))
-    capsule_geometry(a1, b1, radii, margin, geo)
-    centre = 0.5 * (a1 + b1)
-    contact[:] = 0.0
-    nrm = np.empty(3)
-    vel = np.empty(3)
-    for i in range(x.shape[0]):
-        if active[i] <= 0.0:
+    If the two nearest capsules within ``margin`` face each other (normals more than
+    :data:`PINCH_COS` apart), the cloth lies in the gap between two body parts: it keeps half the
+    gap (0 where they overlap) from each instead of ``margin``, so it fits in the gap rather than
+    being ploughed along by the part that closes it."""
+    d1 = d2 = margin
+    n1x = n1y = n1z = n2x = n2y = n2z = 0.0
+    for c in range(geo.shape[0]):
+        ex, ey, ez = px - centre[c, 0], py - centre[c, 1], pz - centre[c, 2]
+        if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
             continue
-        first = -1
-        pinched = False
-        dvn = 0.0
-        for _ in range(COLLISION_PASSES):
-            moved = False
-            for c in range(n_caps):
-                ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
-                if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
-                    continue
-                d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo[c])
-                if d < margin:
-                    vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
-                    vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
-                    vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
-                    dv = _push(x, v, i, margin - d, nx, ny, nz, vsx, vsy, vsz)
-                    _record(contact, i, c, first, nx, ny, nz)
-                    if first < 0 or first == c:
-                        first = c
-                        dvn += dv
-                        nrm[0], nrm[1], nrm[2] = nx, ny, nz
-                        vel[0], vel[1], vel[2] = vsx, vsy, vsz
-                    else:
-                        pinched = True
-                    moved = True
-            if use_floor and x[i, 1] < floor + margin:
-                dv = _push(x, v, i, floor + margin - x[i, 1], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
-                _record(contact, i, n_caps, first, 0.0, 1.0, 0.0)
-                if first < 0 or first == n_caps:
-                    first = n_caps
+        d, nx, ny, nz, _t = round_cone_geo(px, py, pz, geo, c)
+        if d < d1:
+            d2, n2x, n2y, n2z = d1, n1x, n1y, n1z
+            d1, n1x, n1y, n1z = d, nx, ny, nz
+        elif d < d2:
+            d2, n2x, n2y, n2z = d, nx, ny, nz
+    if d2 < margin and n1x * n2x + n1y * n2y + n1z * n2z < PINCH_COS:
+        return min(margin, max(0.0, 0.5 * (d1 + d2)))
+    return margin
+
+
+@_inline
+def _side(x: F64, i: int, d: float, nx: float, ny: float, nz: float, t: float, geo: F64, c: int, a0: F64, b0: F64,
+          a1: F64, b1: F64, xprev: F64) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """Keep particle ``i`` on the side of capsule ``c`` it came from.
+
+    ``xprev[i]`` (the particle at the start of the substep) is carried along with the capsule's
+    motion; if that point is outside the capsule and its normal faces away from ``n`` (the normal
+    of the nearest surface to the particle, inside the capsule), the particle went through the axis
+    within the substep (a limb pressed into cloth the strain limit holds back): it is put back at
+    the carried point and the distance, normal and axial parameter there are returned instead."""
+    qx = xprev[i, 0] + (1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])
+    qy = xprev[i, 1] + (1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])
+    qz = xprev[i, 2] + (1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])
+    dq, mx, my, mz, tq = round_cone_geo(qx, qy, qz, geo, c)
+    if dq > 0.0 and mx * nx + my * ny + mz * nz < 0.0:
+        x[i, 0], x[i, 1], x[i, 2] = qx, qy, qz
+        return dq, mx, my, mz, tq
+    return d, nx, ny, nz, t
+
+
+@_inline
+def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b0: F64, a1: F64, b1: F64,
+             radii: F64, margin: float, friction: float, dt: float, floor: float, use_floor: bool, contact: F64,
+             scratch: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64) -> bool:  # pragma: no cover
+    """Projection passes of particle ``i`` with clearance ``m`` from the capsules (``margin`` from the
+    floor), then friction or, if pinched, the stoutest touched part's velocity; True if pinched.
+    ``scratch (3, 3)``: normal, surface velocity, held velocity. Only the capsules in ``cand[i]``
+    are tested while the particle is within ``slack`` of ``xb[i]`` (every capsule otherwise).
+    A particle found past the capsule's axis from where it was at the start of the substep
+    (``xprev[i]`` carried along with the capsule) goes back to that side (:func:`_side`)."""
+    n_caps = a1.shape[0]
+    for o in range(6):
+        contact[i, o] = 0.0
+    first = -1
+    pinched = False
+    dvn = 0.0
+    big = -1.0
+    for _ in range(COLLISION_PASSES):
+        moved = False
+        ox, oy, oz = x[i, 0] - xb[i, 0], x[i, 1] - xb[i, 1], x[i, 2] - xb[i, 2]
+        mask = cand[i] if ox * ox + oy * oy + oz * oz <= slack * slack else ALL_CAPSULES
+        for c in range(n_caps):
+            if c < 63 and (mask >> c) & 1 == 0:
+                continue
+            ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
+            if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
+                continue
+            d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo, c)
+            if d < m - HIT_TOLERANCE:
+                d, nx, ny, nz, t = _side(x, i, d, nx, ny, nz, t, geo, c, a0, b0, a1, b1, xprev)
+                vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
+                vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
+                vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
+                dv = _push(x, v, i, m - d, nx, ny, nz, vsx, vsy, vsz)
+                _record(contact, i, c, first, nx, ny, nz)
+                if max(radii[c, 0], radii[c, 1]) > big:  # the stoutest body part touched holds pinched cloth
+                    big = max(radii[c, 0], radii[c, 1])
+                    scratch[2, 0], scratch[2, 1], scratch[2, 2] = vsx, vsy, vsz
+                if first < 0 or first == c:
+                    first = c
                     dvn += dv
-                    nrm[0], nrm[1], nrm[2] = 0.0, 1.0, 0.0
-                    vel[:] = 0.0
+                    scratch[0, 0], scratch[0, 1], scratch[0, 2] = nx, ny, nz
+                    scratch[1, 0], scratch[1, 1], scratch[1, 2] = vsx, vsy, vsz
                 else:
                     pinched = True
                 moved = True
-            if not moved:
-                break
-        if first >= 0 and not pinched:
-            _friction(v, i, nrm, vel, dvn, friction)
+        if use_floor and x[i, 1] < floor + margin - HIT_TOLERANCE:
+            dv = _push(x, v, i, floor + margin - x[i, 1], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+            _record(contact, i, n_caps, first, 0.0, 1.0, 0.0)
+            if first < 0 or first == n_caps:
+                first = n_caps
+                dvn += dv
+                scratch[0, 0], scratch[0, 1], scratch[0, 2] = 0.0, 1.0, 0.0
+                scratch[1, 0], scratch[1, 1], scratch[1, 2] = 0.0, 0.0, 0.0
+            else:
+                pinched = True
+            moved = True
+        if not moved:
+            break
+    if first >= 0 and not pinched:
+        _friction(v, i, scratch[0], scratch[1], dvn, friction)
+    elif pinched and big > 0.0:
+        v[i, 0], v[i, 1], v[i, 2] = scratch[2, 0], scratch[2, 1], scratch[2, 2]
+    return pinched
 
 
 @_jit
+def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
+            margin: float, friction: float, dt: float, floor: float, use_floor: bool,
+            contact: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64) -> None:  # pragma: no cover
+    """Project particles (those with ``active > 0``) out of the capsules ``(a1, b1)`` and the floor;
+    same rules as ``collide_np``. ``xprev (N, 3)``: positions at the start of the substep (a
+    particle that went through a capsule's axis since is put back on its side).
+
+    ``cand (N,)``, ``xb (N, 3)`` are a :func:`broad_phase` of ``(a1, b1)`` with reach
+    ``margin + slack``: a particle within ``slack`` of ``xb[i]`` tests only its candidate
+    capsules, any other every capsule (same result as without the broad phase; pass
+    :data:`ALL_CAPSULES` masks to test every capsule always).
+
+    ``contact (N, 6)`` receives the normals of the first and of another surface each particle was
+    pushed off (zero where none). Friction acts on particles that touch a single surface only; a
+    particle pinched between body parts takes the velocity of the stoutest one it touches (cloth
+    pressed against the hip by a hand stays with the hip instead of being torn along by the hand).
+    A pinched particle in a crease narrower than twice the margin is resolved again from where it
+    was with the clearance of :func:`pinch_margin` (half the gap), so it fits in the gap."""
+    geo = np.empty((a1.shape[0], _GEO_COLS))
+    capsule_geometry(a1, b1, radii, margin, geo)
+    centre = 0.5 * (a1 + b1)
+    scratch = np.empty((3, 3))
+    for i in range(x.shape[0]):
+        ox, oy, oz = x[i, 0] - xb[i, 0], x[i, 1] - xb[i, 1], x[i, 2] - xb[i, 2]
+        if active[i] <= 0.0 or (cand[i] == 0 and ox * ox + oy * oy + oz * oz <= slack * slack
+                                and not (use_floor and x[i, 1] < floor + margin - HIT_TOLERANCE)):
+            for o in range(6):  # nothing within reach (the common case): no call, no contact
+                contact[i, o] = 0.0
+            continue
+        px, py, pz = x[i, 0], x[i, 1], x[i, 2]
+        ux, uy, uz = v[i, 0], v[i, 1], v[i, 2]
+        if not _resolve(x, v, i, margin, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor,
+                        use_floor, contact, scratch, cand, xb, slack, xprev):
+            continue
+        m = pinch_margin(px, py, pz, geo, centre, margin)
+        if m < margin:  # a crease: start again with the clearance the gap leaves
+            x[i, 0], x[i, 1], x[i, 2] = px, py, pz
+            v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
+            _resolve(x, v, i, m, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor,
+                     contact, scratch, cand, xb, slack, xprev)
+
+
+@_inline
 def _record(contact: F64, i: int, surface: int, first: int, nx: float, ny: float,
             nz: float) -> None:  # pragma: no cover
     """Note a contact of particle ``i``: the first surface's normal in ``[0:3]``, a second surface's
@@ -218,5 +370,30 @@ def penetration(x: F64, a: F64, b: F64, radii: F64, inv_mass: F64, out: F64) -> 
             for c in range(a.shape[0]):
                 ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
                 if ex * ex + ey * ey + ez * ez < geo[c, 11] * geo[c, 11]:
-                    deepest = max(deepest, -round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo[c])[0])
+                    deepest = max(deepest, -round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo, c)[0])
         out[i] = deepest
+
+
+@_jit
+def covered(points: F64, a: F64, b: F64, radii: F64, reach: F64, out: NDArray[np.bool_]) -> None:  # pragma: no cover
+    """``out[p]``: point ``p`` is within ``reach[c]`` metres of some capsule ``c`` (endpoints per
+    key in ``a, b``) at some key (reference: ``AvatarKeys.covered(..., backend="numpy")``).
+
+    Parameters
+    ----------
+    points : (K + 1, P, 3) float64
+    a, b : (K + 1, C, 3) float64
+    radii : (C, 2) float64
+    reach : (C,) float64
+    out : (P,) bool
+    """
+    geo = np.empty((a.shape[1], _GEO_COLS))
+    out[:] = False
+    for k in range(points.shape[0]):
+        capsule_geometry(a[k], b[k], radii, 0.0, geo)
+        for p in range(points.shape[1]):
+            for c in range(a.shape[1]):
+                if out[p]:
+                    break
+                d = round_cone_geo(points[k, p, 0], points[k, p, 1], points[k, p, 2], geo, c)[0]
+                out[p] = d < reach[c]

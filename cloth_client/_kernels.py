@@ -1,12 +1,14 @@
 """Numba kernels for the cloth solver's hot loops.
 
-Each kernel has a plain numpy reference beside the code that uses it (``cloth.py``: spring, drag
-and integration steps; ``constraints.py``: long-range attachments, line solves and Gauss-Seidel
-strain limiting; ``collision.py``: round-cone distance, collision response, penetration - the
-contact kernels themselves live in :mod:`cloth_client._contact_kernels`) and a test checks that
-both give the same numbers. The kernels
-work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps` runs
-all substeps of one cloth step without returning to Python.
+Each kernel has a plain numpy reference (:mod:`cloth_client.reference`: spring, drag, integration,
+long-range attachments, line solves, Gauss-Seidel strain limiting and the whole substep;
+:mod:`cloth_client.collision` and :mod:`cloth_client.contact`: round-cone distance, broad phase,
+collision response, penetration - the contact kernels themselves live in
+:mod:`cloth_client._contact_kernels`) and a test checks that both give the same numbers. The
+kernels work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps`
+runs all substeps of one cloth step without returning to Python. Small helpers called per particle
+or per spring are compiled inline into their callers (a call with array arguments costs more than
+the work they do).
 """
 
 from __future__ import annotations
@@ -17,17 +19,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._contact_kernels import (
+    ALL_CAPSULES,
+    BROAD_SLACK,
     COLLISION_PASSES,
+    broad_phase,
     capsule_geometry,
     collide,
+    inline_kernel,
     jit_kernel,
     penetration,
+    pinch_margin,
     round_cone,
     round_cone_geo,
 )
 
 __all__ = [
+    "ALL_CAPSULES",
+    "BROAD_SLACK",
     "COLLISION_PASSES",
+    "broad_phase",
     "capsule_geometry",
     "collide",
     "drag_forces",
@@ -35,6 +45,7 @@ __all__ = [
     "line_limit",
     "long_range_attach",
     "penetration",
+    "pinch_margin",
     "round_cone",
     "round_cone_geo",
     "simulate_substeps",
@@ -45,6 +56,7 @@ __all__ = [
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 _jit = jit_kernel
+_inline = inline_kernel
 
 
 @_jit
@@ -125,7 +137,7 @@ def long_range_attach(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:  
             x[i, 2] = x[a, 2] + s * dz
 
 
-@_jit
+@_inline
 def _move(x: F64, i: int, w: float, dx: float, dy: float, dz: float, contact: F64) -> None:  # pragma: no cover
     """``x[i] += w * d``, less any component of the move into the surfaces particle ``i`` touches.
 
@@ -263,7 +275,7 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
             _move(x, row[k], inv_mass[row[k]], mx, my, mz, contact)
 
 
-@_jit
+@_inline
 def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
     k = keys.shape[0] - 1
     u = min(max(s, 0.0), 1.0) * k
@@ -277,7 +289,7 @@ def simulate_substeps(
     x: F64, v: F64, inv_mass: F64, springs: I64, rest: F64, k: F64, kd: F64, tris: I64,
     drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
     lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
-    lim_sweeps: int, final_sweeps: int,
+    lim_sweeps: int, final_sweeps: int, final_rounds: int,
     anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
     max_stretch: float, max_compression: float,
     pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
@@ -300,6 +312,8 @@ def simulate_substeps(
     a1 = np.empty(cap_a.shape[1:])
     b1 = np.empty(cap_a.shape[1:])
     contact = np.zeros((n, 6))
+    cand = np.empty(n, dtype=np.int64)
+    xb = np.empty((n, 3))
     for step in range(n_sub):
         s0 = step / n_sub
         s1 = (step + 1) / n_sub
@@ -319,6 +333,7 @@ def simulate_substeps(
         _lerp_keys(cap_a, s1, a1)
         _lerp_keys(cap_b, s1, b1)
         contact[:] = 0.0
+        broad_phase(x, inv_mass, a1, b1, radii, margin + BROAD_SLACK, cand, xb)
         for _ in range(lim_iterations):  # strain limiting and contacts, interleaved
             long_range_attach(x, inv_mass, anchor, reach)
             for _sweep in range(lim_sweeps):
@@ -330,19 +345,27 @@ def simulate_substeps(
                 if inv_mass[i] > 0.0:
                     for d in range(3):
                         v[i, d] = (x[i, d] - xp[i, d]) / dt
-            collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact)
-        # last word to the strain limit, sliding contacts along their surfaces instead of into them
-        for i in range(n):
-            for d in range(3):
-                f[i, d] = x[i, d]
-        for _sweep in range(final_sweeps):
-            line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
-            line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-            line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
-        strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
-        for i in range(n):
-            for d in range(3):
-                v[i, d] += (x[i, d] - f[i, d]) / dt
+            collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact,
+                    cand, xb, BROAD_SLACK, xp)
+        # final rounds: strain limiting, then collision (with final_rounds == 0: one contact-aware strain
+        # pass that slides contacts along their surfaces instead of into them, and no collision after it)
+        for _r in range(max(final_rounds, 1)):
+            for i in range(n):
+                for d in range(3):
+                    f[i, d] = x[i, d]
+            if final_rounds > 0:
+                contact[:] = 0.0
+            for _sweep in range(final_sweeps):
+                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
+                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
+                line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
+            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
+            for i in range(n):
+                for d in range(3):
+                    v[i, d] += (x[i, d] - f[i, d]) / dt
+            if final_rounds > 0:  # friction was applied in the interleaved passes already
+                collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact,
+                        cand, xb, BROAD_SLACK, xp)
         for i in range(n):
             sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
             if sp > max_speed and inv_mass[i] > 0.0:

@@ -20,8 +20,9 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk_global
 from protocol.messages import BodyInfo, body_from_body_info
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
-from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
+from protocol.skeleton import CAPSULE_INDEX, CAPSULE_JOINTS, POSE_SIZE, Body
 
+from ._contact_kernels import covered as covered_kernel
 from .collision import CapsuleTrack, round_cone_np
 
 __all__ = [
@@ -31,6 +32,7 @@ __all__ = [
     "capsule_endpoints",
     "interpolate_poses",
     "is_discontinuity",
+    "limb_overlap",
     "pose_keys",
     "rigid_root_delta",
 ]
@@ -112,12 +114,29 @@ class AvatarKeys:
     joints: F64
     rotations: F64
 
-    def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64) -> F64:
-        """World positions ``(K + 1, P, 3)`` of pins given by joint index and joint-frame offset."""
-        r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
-        out: F64 = self.joints[:, pin_joint] + np.einsum("kpij,pj->kpi", r, pin_local)
-        return out
+    def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64, axis: NDArray[np.int64] | None = None,
+                    axis_s: F64 | None = None) -> F64:
+        """World positions ``(K + 1, P, 3)`` of pins.
 
+        Parameters
+        ----------
+        pin_joint : (P,) int64
+            Joint whose frame carries each pin's offset.
+        pin_local : (P, 3) float64
+            Offset in that frame, metres.
+        axis : (P, 2) int64, optional
+            Joints ``a, b`` of the bone axis the pin is anchored on (default: the pin's joint).
+        axis_s : (P,) float64, optional
+            Anchor parameter ``s`` along that axis: the target is ``(1 - s) J_a + s J_b + R pin_local``.
+        """
+        r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
+        if axis is None or axis_s is None:
+            origin = self.joints[:, pin_joint]
+        else:
+            s = axis_s[None, :, None]
+            origin = (1.0 - s) * self.joints[:, axis[:, 0]] + s * self.joints[:, axis[:, 1]]
+        out: F64 = origin + np.einsum("kpij,pj->kpi", r, pin_local)
+        return out
 
     def push_out(self, points: F64, clearance: float) -> F64:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
@@ -133,14 +152,23 @@ class AvatarKeys:
                 out[k, inside] += depth[inside, None] * n[inside, c[inside]]
         return out
 
-    def covered(self, points: F64, margin: float) -> NDArray[np.bool_]:
+    def covered(self, points: F64, margin: float | F64, backend: str = "numba") -> NDArray[np.bool_]:
         """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``
-        (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband."""
+        (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband.
+
+        ``margin`` is a distance in metres, or one per capsule ``(C,)``; ``backend="numpy"`` runs the
+        plain reference of the kernel."""
+        if backend == "numba":
+            res = np.empty(points.shape[1], dtype=bool)
+            reach = np.broadcast_to(np.asarray(margin, dtype=np.float64), (self.track.radii.shape[0],))
+            covered_kernel(np.ascontiguousarray(points, dtype=np.float64), self.track.a, self.track.b,
+                           self.track.radii, np.ascontiguousarray(reach), res)
+            return res
         out = np.zeros(points.shape[1], dtype=bool)
         for k in range(points.shape[0]):
             d, _, _ = round_cone_np(points[k], self.track.a[k], self.track.b[k], self.track.radii[:, 0],
                                     self.track.radii[:, 1])
-            out |= d.min(axis=1) < margin
+            out |= (d < margin).any(axis=1)
         return out
 
 
@@ -204,3 +232,39 @@ def rigid_root_delta(p0: F64, p1: F64) -> tuple[F64, F64]:
     r1 = rotvec_to_matrix(p1[3:6])
     rot: F64 = r1 @ r0.T
     return rot, p1[:3] - rot @ p0[:3]
+
+
+#: Capsules that can sink into the body in a recording (forearms, hands) and the capsules they sink
+#: into (pelvis, abdomen, thorax, thighs); see :func:`limb_overlap`. LIMBS is (forearm, hand) per side.
+LIMBS = np.array([CAPSULE_INDEX[n] for n in ("l_forearm", "l_hand", "r_forearm", "r_hand")])
+TRUNK = np.array([CAPSULE_INDEX[n] for n in ("pelvis", "abdomen", "thorax", "l_thigh", "r_thigh")])
+
+
+def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
+                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9) -> F64:
+    """How deep each limb capsule's surface sinks into the trunk capsules in one pose.
+
+    Parameters
+    ----------
+    a, b : (C, 3) float64
+        Capsule endpoints, metres.
+    radii : (C, 2) float64
+        Capsule radii at ``a`` and ``b``.
+    limbs, trunk : (L,), (T,) int64
+        Capsule indices.
+    samples : int
+        Points sampled along each limb's axis.
+
+    Returns
+    -------
+    (L,) float64
+        Largest ``r_limb(s) - d_trunk(s)`` over the axis samples ``s`` and the trunk capsules,
+        metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0 when the
+        two surfaces overlap by that much, e.g. a forearm swung through the hips.
+    """
+    s = np.linspace(0.0, 1.0, samples)
+    r = (1.0 - s)[None, :] * radii[limbs, 0][:, None] + s[None, :] * radii[limbs, 1][:, None]  # (L, S)
+    pts = a[limbs][:, None] + s[None, :, None] * (b[limbs] - a[limbs])[:, None]  # (L, S, 3)
+    d, _, _ = round_cone_np(pts.reshape(-1, 3), a[trunk], b[trunk], radii[trunk, 0], radii[trunk, 1])
+    depth: F64 = (r.reshape(-1) - d.min(axis=1)).reshape(len(limbs), samples).max(axis=1)
+    return depth

@@ -6,11 +6,13 @@ One call of :func:`step` advances the cloth by ``dt`` (one received frame) in ``
    drag on the particle's normal velocity (``0.5 rho_air C_d A v_n |v_n|``);
 2. semi-implicit (symplectic) Euler, with mass-proportional damping ``v /= 1 + c dt``;
 3. pinned particles placed on their targets (interpolated between the step's keys);
-4. strain limiting (:mod:`cloth_client.constraints`): long-range attachments, line solves and
-   Gauss-Seidel sweeps, interleaved with collision, then a final contact-aware pass; velocities
-   follow the corrected positions;
-5. collision with the body capsules and the floor (:mod:`cloth_client.collision`);
-6. a speed clamp as the last guard against a blow-up.
+4. strain limiting (numpy references in :mod:`cloth_client.reference`): long-range attachments, line solves and a
+   Gauss-Seidel sweep, then collision with the body capsules and the floor
+   (:mod:`cloth_client.collision`), ``limit_iterations`` times; then ``final_rounds`` rounds of
+   *[line solves, Gauss-Seidel sweep, collision]* (Provot's order: the strain limit, then the
+   body, has the last word), so every substep ends outside the body wherever it leaves room;
+   velocities follow the corrected positions;
+5. a speed clamp as the last guard against a blow-up.
 
 ``n`` is the smallest count that (a) keeps the explicit springs stable (largest eigenvalue of the
 mass-normalised stiffness matrix, with a margin for stretched springs, reduced for the spring
@@ -18,7 +20,7 @@ damping), (b) respects ``max_substep_dt``, and (c) lets no capsule move more tha
 of its radius per substep (continuous collision), capped at ``max_substeps``.
 
 The numba kernels in :mod:`cloth_client._kernels` run the substeps; ``backend="numpy"`` runs the
-plain numpy references below, which tests compare against the kernels.
+plain numpy references (:mod:`cloth_client.reference`), which tests compare against the kernels.
 """
 
 from __future__ import annotations
@@ -32,9 +34,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 
 from . import _kernels as K
-from .collision import CapsuleTrack, collide_np, interpolate_keys, max_relative_travel
-from .constraints import line_limit_np, long_range_attach_np, strain_limit_np
+from .collision import CapsuleTrack, capsules_near, max_relative_travel
 from .garment import Garment
+from .reference import substeps_np
 
 __all__ = [
     "ClothModel",
@@ -50,6 +52,8 @@ __all__ = [
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+#: Distance (m) beyond the cloth's reach within a step at which a capsule still counts as near it.
+NEAR_ALLOWANCE = 0.05
 
 
 @dataclass(frozen=True)
@@ -72,7 +76,16 @@ class ClothParams:
     max_stretch, max_compression : float
         Strain limits of the structural springs (0.05 = 5 %).
     limit_iterations : int
-        Gauss-Seidel sweeps of strain limiting per substep.
+        Rounds of *[long-range attachments, line solves, Gauss-Seidel sweep, collision]* per substep.
+    limit_sweeps : int
+        Line-solve sweeps in each of those rounds.
+    final_sweeps : int
+        Line-solve sweeps in each final round.
+    final_rounds : int
+        Final rounds of *[line solves, Gauss-Seidel sweep, collision]*; 0 = one contact-aware strain
+        pass without collision after it (the previous scheme).
+    tethers : bool
+        Long-range attachments on.
     friction : float
         Coulomb coefficient between cloth and body / floor.
     margin : float
@@ -102,9 +115,10 @@ class ClothParams:
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_stretch: float = 0.03
     max_compression: float = 0.10
-    limit_iterations: int = 2
+    limit_iterations: int = 1
     limit_sweeps: int = 1
     final_sweeps: int = 2
+    final_rounds: int = 2
     tethers: bool = True
     friction: float = 0.2
     margin: float = 0.006
@@ -214,7 +228,8 @@ def build_model(garment: Garment, params: ClothParams | None = None) -> ClothMod
 def _max_eigenvalue(x: F64, springs: I64, k: F64, inv_mass: F64) -> float:
     """Largest eigenvalue of ``M^-1/2 K M^-1/2`` over the free particles at configuration ``x``
     (``K`` the springs' stiffness matrix; its square root is the highest angular frequency, 1/s).
-    Falls back to the Gershgorin bound if ARPACK does not converge."""
+    Falls back to the Gershgorin bound if ARPACK does not converge. The start vector is fixed, so the
+    same model always gets the same substep count (a run is reproducible)."""
     n = len(x)
     d = x[springs[:, 1]] - x[springs[:, 0]]
     u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
@@ -228,8 +243,9 @@ def _max_eigenvalue(x: F64, springs: I64, k: F64, inv_mass: F64) -> float:
     w = np.repeat(np.sqrt(inv_mass), 3)
     stiff = coo_matrix((np.concatenate(vals) * w[np.concatenate(rows)] * w[np.concatenate(cols)],
                         (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n)).tocsr()
+    start = np.random.default_rng(0).standard_normal(3 * n)  # fixed: ARPACK's random start made runs differ
     try:
-        return float(eigsh(stiff, k=1, which="LA", return_eigenvectors=False, tol=1e-4)[0])
+        return float(eigsh(stiff, k=1, which="LA", return_eigenvectors=False, tol=1e-4, v0=start)[0])
     except ArpackNoConvergence:
         return float(np.abs(stiff).sum(axis=1).max())
 
@@ -240,11 +256,19 @@ def initial_state(model: ClothModel, x: F64 | None = None, t: float = 0.0) -> Cl
     return ClothState(pos, np.zeros_like(pos), t)
 
 
-def plan_substeps(model: ClothModel, track: CapsuleTrack, dt: float) -> int:
-    """Number of substeps for a step of ``dt`` seconds with body motion ``track`` (see module doc)."""
+def plan_substeps(model: ClothModel, track: CapsuleTrack, dt: float, state: ClothState | None = None) -> int:
+    """Number of substeps for a step of ``dt`` seconds with body motion ``track`` (see module doc).
+
+    With ``state``, only capsules that can reach the cloth within the step count for the travel
+    limit (:func:`~cloth_client.collision.capsules_near`, with the cloth's fastest particle, a 5 cm
+    allowance and the margin): a hand flung overhead does not refine a skirt's substeps."""
     p = model.params
     limit_dt = min(p.max_substep_dt, model.stable_dt)
-    n = max(1, math.ceil(dt / limit_dt - 1e-9), math.ceil(max_relative_travel(track) / p.max_travel - 1e-9))
+    near = None
+    if state is not None and track.n_keys > 0:
+        speed = float(np.sqrt(np.einsum("ij,ij->i", state.v, state.v).max())) if len(state.v) else 0.0
+        near = capsules_near(track, state.x, speed * dt + NEAR_ALLOWANCE + p.margin)
+    n = max(1, math.ceil(dt / limit_dt - 1e-9), math.ceil(max_relative_travel(track, near) / p.max_travel - 1e-9))
     return int(min(n, max(p.max_substeps, math.ceil(dt / model.stable_dt - 1e-9))))
 
 
@@ -279,7 +303,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
     """
     if not dt > 0:
         raise ValueError(f"dt must be positive, got {dt}")
-    n = n_substeps if n_substeps is not None else plan_substeps(model, track, dt)
+    n = n_substeps if n_substeps is not None else plan_substeps(model, track, dt, state)
     x, v = state.x.copy(), state.v.copy()
     p = model.params
     pins = np.ascontiguousarray(pin_keys, dtype=np.float64)
@@ -296,6 +320,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
             0.5 * p.air_density * p.drag_coefficient, np.asarray(p.wind, dtype=np.float64),
             np.asarray(p.gravity, dtype=np.float64), p.mass_damping + extra_damping,
             model.lim_springs, model.lim_lo, model.lim_hi, p.limit_iterations, p.limit_sweeps, p.final_sweeps,
+            p.final_rounds,
             model.garment.anchor, model.reach,
             model.lines_v, model.rest_v, model.lines_h, model.rest_h, model.lines_s, model.rest_s,
             p.max_stretch, p.max_compression,
@@ -303,81 +328,10 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
             track.radii,
             p.margin, p.friction, 0.0 if p.floor is None else p.floor, p.floor is not None, p.max_speed, n, dt)
     elif backend == "numpy":
-        _substeps_np(x, v, model, inv_mass, pin_idx, track, pins, n, dt, p.mass_damping + extra_damping)
+        substeps_np(x, v, model, inv_mass, pin_idx, track, pins, n, dt, p.mass_damping + extra_damping)
     else:
         raise ValueError(f"unknown backend {backend!r}")
     return ClothState(x, v, state.t + dt, state.substeps + n)
-
-
-# --- numpy references of the kernels -------------------------------------------------------------------
-
-def spring_forces_np(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64) -> F64:
-    """Hooke + axial damping forces ``(N, 3)`` of ``springs (S, 2)`` (reference of ``K.spring_forces``)."""
-    d = x[springs[:, 1]] - x[springs[:, 0]]
-    length = np.linalg.norm(d, axis=1)
-    ok = length > 1e-12
-    u = np.where(ok[:, None], d / np.where(ok, length, 1.0)[:, None], 0.0)
-    dvn = np.einsum("ij,ij->i", v[springs[:, 1]] - v[springs[:, 0]], u)
-    fs = np.where(ok, k * (length - rest) + kd * dvn, 0.0)[:, None] * u
-    f = np.zeros_like(x)
-    for c in range(3):
-        f[:, c] = np.bincount(springs[:, 0], fs[:, c], len(x)) - np.bincount(springs[:, 1], fs[:, c], len(x))
-    return f
-
-
-def drag_forces_np(x: F64, v: F64, tris: I64, coeff: float, wind: F64) -> F64:
-    """Quadratic normal air drag ``(N, 3)`` (reference of ``K.drag_forces``)."""
-    c = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]) / 6.0
-    av = np.stack([np.bincount(tris.ravel(), np.repeat(c[:, d], 3), len(x)) for d in range(3)], axis=1)
-    area = np.linalg.norm(av, axis=1)
-    n = av / np.maximum(area, 1e-300)[:, None]
-    vn = np.einsum("ij,ij->i", v - wind, n)
-    out: F64 = np.where((area >= 1e-16)[:, None], -(coeff * area * vn * np.abs(vn))[:, None] * n, 0.0)
-    return out
-
-
-def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: int) -> None:
-    p = model.params
-    for _ in range(sweeps):
-        for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h),
-                            (model.lines_s, model.rest_s)):
-            line_limit_np(x, inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
-
-
-def _substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,
-                 n: int, dt_total: float, mass_damping: float) -> None:
-    p, g = model.params, model.garment
-    dt = dt_total / n
-    free = inv_mass > 0
-    grav, wind = np.asarray(p.gravity), np.asarray(p.wind)
-    for step_i in range(n):
-        s0, s1 = step_i / n, (step_i + 1) / n
-        f = spring_forces_np(x, v, model.springs, model.rest, model.k, model.kd)
-        if p.air_density * p.drag_coefficient > 0:
-            f += drag_forces_np(x, v, g.triangles, 0.5 * p.air_density * p.drag_coefficient, wind)
-        xp = x.copy()
-        v[free] = (v[free] + dt * (f[free] * inv_mass[free, None] + grav)) / (1.0 + mass_damping * dt)
-        x[free] += dt * v[free]
-        target = interpolate_keys(pins, s1)
-        x[pin_idx] = target
-        v[pin_idx] = (target - xp[pin_idx]) / dt
-        a0, b0 = track.at(s0)
-        a1, b1 = track.at(s1)
-        contact = np.zeros((len(x), 6))
-        for _ in range(p.limit_iterations):
-            long_range_attach_np(x, inv_mass, g.anchor, model.reach)
-            _line_pass(x, model, inv_mass, contact, p.limit_sweeps)
-            strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
-            v[free] = (x[free] - xp[free]) / dt
-            collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact)
-        before = x.copy()
-        _line_pass(x, model, inv_mass, contact, p.final_sweeps)
-        strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
-                        1 if p.final_sweeps > 0 else 0, contact)
-        v += (x - before) / dt
-        speed = np.linalg.norm(v, axis=1)
-        fast = free & (speed > p.max_speed)
-        v[fast] *= (p.max_speed / speed[fast])[:, None]
 
 
 # --- diagnostics ---------------------------------------------------------------------------------------

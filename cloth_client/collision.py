@@ -17,16 +17,7 @@ substep (:func:`max_relative_travel`), so a fast arm swing cannot jump over a cl
 
 Response
 --------
-A particle closer than ``margin`` (the cloth's half thickness) to a capsule is projected onto the
-offset surface and the normal component of its velocity relative to the capsule surface is removed
-if approaching. After all passes, a particle that touched a single surface has its tangential
-velocity relative to it reduced by Coulomb friction ``mu * |dv_n|``; cloth squeezed between two
-body parts gets no friction (each would drag it its own way and tear it). Capsules
-are treated one after another per particle (Gauss-Seidel); a particle that was moved gets another
-pass (up to :data:`COLLISION_PASSES`, the floor included in each), which works cloth caught where
-two capsules overlap, or a capsule meets the floor, out to the outside of their union. The normals
-of up to two surfaces each particle touches are recorded for the contact-aware strain limiting
-that follows (cloth pinched in a crease may then only slide along it).
+:mod:`cloth_client.contact`.
 
 The numba kernels in :mod:`cloth_client._kernels` implement the same operations; the functions
 here are their plain numpy references (tests check that both agree).
@@ -41,7 +32,8 @@ from numpy.typing import NDArray
 
 __all__ = [
     "CapsuleTrack",
-    "collide_np",
+    "capsules_near",
+    "interpolate_keys",
     "max_relative_travel",
     "penetration_np",
     "round_cone_np",
@@ -117,9 +109,15 @@ def interpolate_keys(keys: F64, s: float) -> F64:
     return out
 
 
-def max_relative_travel(track: CapsuleTrack) -> float:
+def max_relative_travel(track: CapsuleTrack, near: NDArray[np.bool_] | None = None) -> float:
     """Largest distance any capsule endpoint moves between two keys, in units of that capsule's
     smaller radius, times the number of key intervals (so it is comparable with one whole step).
+
+    Parameters
+    ----------
+    track : CapsuleTrack
+    near : (C,) bool, optional
+        Only these capsules count (see :func:`capsules_near`); default all.
 
     Returns
     -------
@@ -130,7 +128,25 @@ def max_relative_travel(track: CapsuleTrack) -> float:
     db = np.linalg.norm(np.diff(track.b, axis=0), axis=-1)
     rmin = track.radii.min(axis=1)
     rel = np.maximum(da, db) / rmin
+    if near is not None:
+        rel = rel[:, near]
     return float(rel.max() * (track.n_keys - 1)) if rel.size else 0.0
+
+
+def capsules_near(track: CapsuleTrack, x: F64, reach: float) -> NDArray[np.bool_]:
+    """Capsules that may touch the cloth during the step: their swept bounding box (over all keys,
+    grown by the larger radius) meets the bounding box of ``x (N, 3)`` grown by ``reach`` (metres;
+    how far the cloth can move within the step plus the clearance).
+
+    Returns
+    -------
+    (C,) bool
+    """
+    r = track.radii.max(axis=1)[:, None]
+    lo = np.minimum(track.a.min(axis=0), track.b.min(axis=0)) - r  # (C, 3)
+    hi = np.maximum(track.a.max(axis=0), track.b.max(axis=0)) + r
+    out: NDArray[np.bool_] = np.all((lo <= x.max(axis=0) + reach) & (hi >= x.min(axis=0) - reach), axis=1)
+    return out
 
 
 def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F64]:
@@ -189,106 +205,6 @@ def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F
     t = np.where(engulf[None], np.where(big_b, 1.0, 0.0)[None], np.clip(y / safe_len, 0.0, 1.0))
     t = np.where(in_a & ~engulf[None], 0.0, np.where(in_b, 1.0, t))
     return dist, normal, t
-
-
-#: Most projection passes over the capsules per particle (only particles moved in a pass get another).
-COLLISION_PASSES = 4
-
-
-def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:
-    """Move ``x[hit]`` by ``push * n`` and cancel the approach to the surface moving at ``vs``;
-    returns the normal velocity change ``(N,)`` (0 where not hit)."""
-    x[hit] += push[hit, None] * n[hit]
-    vn = np.einsum("ij,ij->i", v - vs, n)
-    cancel = hit & (vn < 0.0)
-    v[cancel] -= vn[cancel, None] * n[cancel]
-    out: F64 = np.where(cancel, -vn, 0.0)
-    return out
-
-
-def _friction(v: F64, sel: NDArray[np.bool_], n: F64, vs: F64, dvn: F64, friction: float) -> None:
-    """Coulomb friction on ``v[sel]``: tangential speed relative to the surface reduced by ``friction * dvn``."""
-    r = v[sel] - vs[sel]
-    vn = np.einsum("ij,ij->i", r, n[sel])
-    t = r - vn[:, None] * n[sel]
-    vt = np.linalg.norm(t, axis=1)
-    scale = np.where(vt > 1e-12, np.maximum(0.0, 1.0 - friction * dvn[sel] / np.maximum(vt, _TINY)) - 1.0, 0.0)
-    v[sel] += scale[:, None] * t
-
-
-def _record(contact: F64, first: NDArray[np.int64], hit: NDArray[np.bool_], surface: int, n: F64) -> None:
-    """Note contacts: the first surface's normal in ``contact[:, 0:3]``, another's in ``[:, 3:6]``."""
-    single = hit & ((first < 0) | (first == surface))
-    contact[single, 0:3] = n[single]
-    contact[hit & ~single, 3:6] = n[hit & ~single]
-
-
-def collide_np(
-    x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
-    margin: float, friction: float, dt: float, floor: float | None, contact: F64,
-) -> None:
-    """Resolve contacts of particles with capsules (end-of-substep endpoints) and the floor, in place.
-
-    Parameters
-    ----------
-    x, v : (N, 3) float64
-        Positions and velocities at the end of the substep (modified in place).
-    free : (N,) bool
-        Particles that may be moved (pinned ones are skipped).
-    a0, b0 : (C, 3) float64
-        Capsule endpoints at the start of the substep (for the surface velocity).
-    a1, b1 : (C, 3) float64
-        Capsule endpoints at the end of the substep (the geometry collided against).
-    radii : (C, 2) float64
-    margin : float
-        Distance kept from the surfaces (cloth half thickness), metres.
-    friction : float
-        Coulomb coefficient (applied to particles touching a single surface).
-    dt : float
-        Substep length, seconds.
-    floor : float or None
-        Height of the floor plane (Y up), or None for no floor.
-    contact : (N, 6) float64
-        Output: unit normals of the first and of another surface each particle was pushed off
-        (zero where none).
-    """
-    contact[:] = 0.0
-    n = len(x)
-    first = np.full(n, -1, dtype=np.int64)
-    pinched = np.zeros(n, dtype=bool)
-    dvn = np.zeros(n)
-    nrm, vel = np.zeros((n, 3)), np.zeros((n, 3))
-    va, vb = (a1 - a0) / dt, (b1 - b0) / dt
-
-    def hit_surface(hit: NDArray[np.bool_], surface: int, push: F64, nn: F64, vs: F64) -> None:
-        dv = _push(x, v, hit, push, nn, vs)
-        _record(contact, first, hit, surface, nn)
-        own = hit & ((first < 0) | (first == surface))
-        first[own] = surface
-        dvn[own] += dv[own]
-        nrm[own], vel[own] = nn[own], vs[own]
-        pinched[hit & ~own] = True
-
-    up = np.broadcast_to(np.array([0.0, 1.0, 0.0]), x.shape)
-    todo = free.copy()
-    for _ in range(COLLISION_PASSES):
-        moved = np.zeros_like(todo)
-        for c in range(a1.shape[0]):
-            d, nc, t = round_cone_np(x, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
-            hit = todo & (d[:, 0] < margin)
-            if not hit.any():
-                continue
-            vs = (1.0 - t[:, :1]) * va[c] + t[:, :1] * vb[c]
-            hit_surface(hit, c, margin - d[:, 0], nc[:, 0], vs)
-            moved |= hit
-        if floor is not None:
-            hit = todo & (x[:, 1] < floor + margin)
-            hit_surface(hit, a1.shape[0], floor + margin - x[:, 1], up, np.zeros_like(x))
-            moved |= hit
-        todo = moved
-        if not todo.any():
-            break
-    _friction(v, (first >= 0) & ~pinched, nrm, vel, dvn, friction)
 
 
 def penetration_np(x: F64, a: F64, b: F64, radii: F64, free: NDArray[np.bool_]) -> F64:

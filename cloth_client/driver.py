@@ -15,10 +15,13 @@ it ``(pose, time)`` pairs as they arrive:
   moved rigidly with the root, the limbs swing from their old to their new angles over
   ``reset_blend_s`` of simulated time with extra damping, then extra damping fades out over
   ``reset_calm_s``;
-* **a body part over the seam** (a shrug under the collar, a thigh or hand on the waistband) -
+* **a body part over the seam** (a shrug under the collar, a hand or forearm on the waistband) -
   the garment's ``seam`` policy applies: a collar slides out onto the covering surface; a
-  waistband lets the covered pins and their neighbours go for that step (they collide like free
-  cloth) unless most of it is covered, when it slides too;
+  waistband lets the covered pins (a body part other than the one it is sewn round within
+  ``seam_reach``) and their neighbours go for that step (they collide like free
+  cloth) unless more than ``slide_fraction`` of it is covered, when it slides too (pushing a
+  waistband's pins out to the nearest surface sends neighbours to opposite sides of a thigh: the
+  rest of the pins carries the garment meanwhile);
 * a non-finite value (never expected) re-dresses the garment and is counted.
 """
 
@@ -34,14 +37,35 @@ from numpy.typing import NDArray
 from protocol.skeleton import Body
 
 from . import _kernels as K
-from .avatar import Continuity, capsule_endpoints, interpolate_poses, is_discontinuity, pose_keys, rigid_root_delta
-from .cloth import ClothModel, ClothParams, ClothState, build_model, energy, initial_state, step, structural_strain
+from .avatar import (
+    LIMBS,
+    Continuity,
+    capsule_endpoints,
+    interpolate_poses,
+    is_discontinuity,
+    limb_overlap,
+    pose_keys,
+    rigid_root_delta,
+)
+from .cloth import (
+    ClothModel,
+    ClothParams,
+    ClothState,
+    build_model,
+    energy,
+    initial_state,
+    plan_substeps,
+    step,
+    structural_strain,
+)
+from .collision import CapsuleTrack, round_cone_np
 from .garment import Garment
 
 __all__ = ["ClothDriver", "DriverConfig", "FrameStats", "RunStats"]
 
 log = logging.getLogger(__name__)
 F64 = NDArray[np.float64]
+GHOST_RADIUS = 1e-3  # radius of a limb that is sunk into the trunk (m); see ClothDriver._ghosted
 
 
 @dataclass(frozen=True)
@@ -55,6 +79,10 @@ class DriverConfig:
     reset_blend_s: float = 0.1
     reset_calm_s: float = 0.3
     reset_damping: float = 6.0
+    seam_reach: float = 0.04
+    slide_fraction: float = 0.8
+    ghost_depth: float = 0.02
+    ghost_clear: float = -0.03
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -130,6 +158,10 @@ class ClothDriver:
         self._depth = np.empty(garment.n_particles)
         self._free = self.model.inv_mass > 0
         self._first: tuple[F64, float] | None = None
+        self._seam_margin = self._seam_reach()
+        self._body_end: tuple[F64, F64] | None = None
+        self._ghost = np.zeros(len(LIMBS), dtype=bool)
+        self._overlap: F64 | None = None
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -234,9 +266,10 @@ class ClothDriver:
         assert self.state is not None
         n_keys = max(1, math.ceil(dt / self.config.key_dt - 1e-9))
         keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)))
-        pins = keys.pin_targets(self.garment.pin_joint, self.garment.pin_local)
-        released = self._widen(keys.covered(pins, self.model.params.margin))
-        if self.garment.seam == "slide" or released.sum() > len(released) // 2:
+        g = self.garment
+        pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+        released = self._widen(keys.covered(pins, self._seam_margin))
+        if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
             # slide the seam over the body part that covers it (always for a collar; for a
             # waistband when most of it is covered, instead of letting the garment go)
             pins = keys.push_out(pins, self.model.params.margin)
@@ -244,10 +277,50 @@ class ClothDriver:
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s
             extra_damping = self.config.reset_damping * min(1.0, left)
-        self.state = step(self.state, self.model, keys.track, pins, dt, released=released,
-                          extra_damping=extra_damping)
+        # substeps planned on the real limbs: a sunk limb's thin stand-in would count as fast
+        n_sub = plan_substeps(self.model, keys.track, dt, self.state)
+        self.state = step(self.state, self.model, self._ghosted(keys.track), pins, dt, released=released,
+                          n_substeps=n_sub, extra_damping=extra_damping)
+        self._body_end = (keys.track.a[-1], keys.track.b[-1])  # the capsules at p1, for _measure
         self._free = self.model.inv_mass > 0
         self._free[self.garment.pin_index[released]] = True
+
+    def _ghosted(self, track: CapsuleTrack) -> CapsuleTrack:
+        """``track`` with the forearms and hands that are sunk into the trunk shrunk to a line.
+
+        A limb whose surface sinks more than ``ghost_depth`` into the trunk's (a forearm swung
+        through the hips, a hand pressed into the belly: a pose no body can take, or the capsules'
+        crudeness) at the start or end of the step no longer pushes the cloth (it keeps a
+        ``GHOST_RADIUS``) until it is clear of the trunk again (``ghost_clear``, a gap when negative):
+        the cloth stays on the trunk under it instead of being squeezed into the overlap, dragged
+        into the body with the limb and left with the limb inside the garment. The forearm and the
+        hand of a side go together (a hand left active at a sunk wrist wedges cloth into the crease)."""
+        cfg = self.config
+        end = limb_overlap(track.a[-1], track.b[-1], track.radii)  # the start is the previous step's end
+        depth = end if self._overlap is None else np.maximum(end, self._overlap)
+        self._overlap = end
+        ghost = np.where(self._ghost, depth > cfg.ghost_clear, depth > cfg.ghost_depth)
+        self._ghost = ghost.reshape(-1, 2).any(axis=1).repeat(2)  # forearm and hand of a side together
+        if not self._ghost.any():
+            return track
+        radii = track.radii.copy()
+        radii[LIMBS[self._ghost]] = GHOST_RADIUS
+        return CapsuleTrack(track.a, track.b, radii)
+
+    def _seam_reach(self) -> F64:
+        """Per-capsule distance ``(C,)`` at which a body part counts as covering a seam pin.
+
+        The cloth margin for the body parts the seam is sewn round (within ``seam_reach`` of a pin
+        in the build pose); ``seam_reach`` for the others (for a waistband: arms and hands), which
+        would otherwise wedge between the pinned row and the cloth just below it."""
+        g, p = self.garment, self.model.params
+        out = np.full(len(self.body.capsule_radii), p.margin)
+        if g.seam != "release":
+            return out
+        a, b = capsule_endpoints(self.body, g.pose)
+        d, _, _ = round_cone_np(g.rest[g.pin_index], a, b, self.body.capsule_radii[:, 0], self.body.capsule_radii[:, 1])
+        out[d.min(axis=0) > self.config.seam_reach] = self.config.seam_reach
+        return out
 
     def _widen(self, covered: NDArray[np.bool_]) -> NDArray[np.bool_]:
         """``covered`` pins plus their neighbours along the seam (the seam gives way around the
@@ -278,7 +351,7 @@ class ClothDriver:
 
     def _measure(self, pose: F64, t: float, substeps: int, reset: bool) -> FrameStats:
         assert self.state is not None
-        a, b = capsule_endpoints(self.body, pose)
+        a, b = self._body_end if self._body_end is not None else capsule_endpoints(self.body, pose)
         K.penetration(self.state.x, a, b, self.body.capsule_radii, self._free.astype(np.float64), self._depth)
         inside = self._depth > 0.0
         n_in = int(inside.sum())

@@ -1,4 +1,4 @@
-"""Parametric garments sized to a body: a cape pinned at the shoulders and a skirt pinned at the hips.
+"""Parametric garments sized to a body: a cape pinned at the shoulders and a skirt pinned at the waist.
 
 Every garment is a regular particle grid (``rows x cols``, the skirt wrapping around in columns)
 placed around the body in its relaxed standing pose (:func:`protocol.skeleton.standing_pose`) so
@@ -9,7 +9,7 @@ that it clears every body capsule by a margin. The grid gives
 * triangles for rendering, air drag and per-particle mass (density x 1/3 of the adjacent area);
 * pins: top-row particles, each attached to a joint with a fixed offset in that joint's frame (the
   cape's collar, between the roots of the arms and clear of the shoulders, to the chest; the
-  skirt's waistband, all round, to the pelvis);
+  skirt's waistband, all round the natural waist, to the spine, anchored on the abdomen's axis);
 * long-range attachments: every particle's nearest pin and its rest distance along the cloth
   (shortest path over structural and shear springs), which bound how far the cloth can sag;
 * the order in which strain limiting visits the structural springs: by graph distance from the
@@ -28,7 +28,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from protocol.kinematics import fk_global
-from protocol.skeleton import JOINT_INDEX, Body, default_body, standing_pose
+from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body, default_body, standing_pose
 
 from . import _kernels
 from .avatar import capsule_endpoints
@@ -71,9 +71,16 @@ class Garment:
     pin_index : (P,) int64
         Pinned particles.
     pin_joint : (P,) int64
-        Joint each pin is attached to.
+        Joint each pin is attached to (its frame carries ``pin_local``).
     pin_local : (P, 3) float64
-        Pin position in its joint's frame, metres.
+        Pin position in its joint's frame, relative to the pin's anchor point, metres.
+    pin_axis : (P, 2) int64
+        Joints ``a, b`` of the bone axis each pin is anchored on.
+    pin_axis_s : (P,) float64
+        Position of the anchor along that axis: the pin's target is
+        ``(1 - s) J_a + s J_b + R_joint pin_local``. A plain joint pin has ``a = b = pin_joint``,
+        ``s = 0``; the skirt's waistband rides the abdomen's axis (pelvis to chest joint), so it
+        stays round the trunk when the spine bends.
     limit_springs : (S_structural, 2) int64
         The structural springs in strain-limiting order (from the pins outwards).
     limit_rest : (S_structural,) float64
@@ -110,6 +117,8 @@ class Garment:
     pin_index: I64
     pin_joint: I64
     pin_local: F64
+    pin_axis: I64
+    pin_axis_s: F64
     limit_springs: I64
     limit_rest: F64
     limit_batches: I64
@@ -200,10 +209,12 @@ def _limit_batches(n: int, springs: I64, pins: I64) -> tuple[I64, I64]:
 
 
 def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | NDArray[np.int64],
-           density: float, pin_cols: NDArray[np.bool_] | None = None, seam: str = "slide") -> Garment:
+           density: float, pin_cols: NDArray[np.bool_] | None = None, seam: str = "slide",
+           axis: tuple[str, str, float] | None = None) -> Garment:
     """Assemble a :class:`Garment` from grid positions ``pos (rows, cols, 3)``; the top row's
     particles in ``pin_cols`` (default: all) are pinned to ``joint`` (a name, or one joint index per
-    top-row particle)."""
+    top-row particle), anchored at that joint or, with ``axis = (joint_a, joint_b, s)``, at the point
+    ``s`` of the way from ``joint_a`` to ``joint_b``."""
     rows, cols = pos.shape[:2]
     x = pos.reshape(-1, 3)
     structural, shear, bend, tris = grid_topology(rows, cols, wrap)
@@ -214,7 +225,13 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
     joints, rot = fk_global(pose, body)
     pin_joint = (np.full(len(pins), JOINT_INDEX[joint], dtype=np.int64) if isinstance(joint, str)
                  else np.asarray(joint, dtype=np.int64)[pins])
-    local = np.einsum("pji,pj->pi", rot[pin_joint], x[pins] - joints[pin_joint])  # R^T (x - p)
+    if axis is None:
+        pin_axis, pin_s = np.stack([pin_joint, pin_joint], axis=1), np.zeros(len(pins))
+    else:
+        pin_axis = np.tile(np.array([JOINT_INDEX[axis[0]], JOINT_INDEX[axis[1]]], dtype=np.int64), (len(pins), 1))
+        pin_s = np.full(len(pins), float(axis[2]))
+    origin = (1.0 - pin_s[:, None]) * joints[pin_axis[:, 0]] + pin_s[:, None] * joints[pin_axis[:, 1]]
+    local = np.einsum("pji,pj->pi", rot[pin_joint], x[pins] - origin)  # R^T (x - anchor)
     order, ptr = _limit_batches(len(x), structural, pins)
     lim = structural[order]
     edges = np.concatenate([structural, shear])
@@ -229,21 +246,32 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
     return Garment(
         kind=kind, rest=x.copy(), triangles=tris, structural=structural, structural_rest=rest(structural),
         shear=shear, shear_rest=rest(shear), bend=bend, bend_rest=rest(bend), mass=mass,
-        pin_index=pins, pin_joint=pin_joint, pin_local=local,
+        pin_index=pins, pin_joint=pin_joint, pin_local=local, pin_axis=pin_axis, pin_axis_s=pin_s,
         limit_springs=lim, limit_rest=rest(lim), limit_batches=ptr, anchor=source.astype(np.int64), anchor_dist=dist,
         grid_shape=(rows, cols), wrap=wrap, pose=pose.copy(), seam=seam,
     )
 
 
-def _extent(body: Body, pose: F64, origin: F64, dirs: F64, reach: float = 0.8, samples: int = 161) -> F64:
+def _extent(body: Body, pose: F64, origin: F64, dirs: F64, reach: float = 0.8, samples: int = 161,
+            capsules: NDArray[np.int64] | None = None, first: bool = False) -> F64:
     """Distance from ``origin (M, 3)`` along unit ``dirs (M, 3)`` to the outermost body surface
-    point (0 where the ray meets no capsule), metres, sampled every ``reach / (samples - 1)``."""
+    point (0 where the ray meets no capsule), metres, sampled every ``reach / (samples - 1)``.
+
+    ``capsules`` restricts the body to those capsule indices; ``first`` returns the distance at
+    which each ray first enters the body instead (``inf`` where it meets none)."""
     a, b = capsule_endpoints(body, pose)
+    radii = body.capsule_radii
+    if capsules is not None:
+        a, b, radii = a[capsules], b[capsules], radii[capsules]
     r = np.linspace(0.0, reach, samples)
     pts = (origin[:, None, :] + r[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
     depth = np.empty(len(pts))
-    _kernels.penetration(pts, a, b, body.capsule_radii, np.ones(len(pts)), depth)
+    _kernels.penetration(pts, np.ascontiguousarray(a), np.ascontiguousarray(b), np.ascontiguousarray(radii),
+                         np.ones(len(pts)), depth)
     inside = (depth > 0.0).reshape(len(origin), samples)
+    if first:
+        hit: F64 = np.where(inside.any(axis=1), r[np.argmax(inside, axis=1)] - reach / (samples - 1), np.inf)
+        return hit
     last = np.where(inside.any(axis=1), samples - 1 - np.argmax(inside[:, ::-1], axis=1), -1)
     out: F64 = np.where(last >= 0, r[np.maximum(last, 0)] + reach / (samples - 1), 0.0)
     return out
@@ -297,7 +325,14 @@ def make_cape(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: float
 
 def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: float | None = None,
                flare_deg: float = 22.0, density: float = DEFAULT_DENSITY) -> Garment:
-    """A flared skirt hanging from a hip-level waistband to below the knees.
+    """An A-line skirt hanging from the natural waist to below the knees, inside the arms.
+
+    The waistband is a ring round the abdomen at the height of the spine joint, anchored on the
+    abdomen's axis (pelvis to chest joint) and turning with the spine: above the hip joints, so
+    no thigh reaches it even in a high kick, and well inside the elbows. Below it the skirt clears
+    the hips and buttocks (a fitted yoke) and flares by ``flare_deg``; where an arm hangs beside it
+    the flare is capped to stay inside the arm, so the hands swing outside the cloth instead of
+    catching it against the hips.
 
     Parameters
     ----------
@@ -313,32 +348,36 @@ def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: floa
     """
     pose = standing_pose(body)
     joints, _ = fk_global(pose, body)
-    pelvis = joints[JOINT_INDEX["pelvis"]]
-    r_pelvis = float(body.capsule_radii[0].max())
-    # a hip-level waistband: higher up it would lie on the abdomen, which pivots about the pelvis
-    # joint and sweeps over a pelvis-fixed seam whenever the trunk leans
-    top_y = pelvis[1] + 0.5 * r_pelvis
+    pelvis, chest = joints[JOINT_INDEX["pelvis"]], joints[JOINT_INDEX["chest"]]
+    top_y = float(joints[JOINT_INDEX["spine"], 1])
+    s_waist = (top_y - pelvis[1]) / (chest[1] - pelvis[1])
+    centre = pelvis + s_waist * (chest - pelvis)
     knee_y = 0.5 * (joints[JOINT_INDEX["l_knee"], 1] + joints[JOINT_INDEX["r_knee"], 1])
     length = float(length) if length is not None else top_y - (knee_y - 0.04 * body.height)
-    # waistband: a ring hugging the body at top_y, angle 0 = front (+Z), increasing towards +X
+    arms = np.array([CAPSULE_INDEX[f"{side}_{part}"] for side in "lr" for part in ("upper_arm", "forearm", "hand")])
+    trunk_legs = np.setdiff1d(np.arange(len(body.capsule_radii)), arms)
+    # waistband: a ring hugging the trunk at top_y, angle 0 = front (+Z), increasing towards +X
     probe = 72
     theta_p = np.linspace(0.0, 2 * np.pi, probe, endpoint=False)
     dirs_p = np.stack([np.sin(theta_p), np.zeros(probe), np.cos(theta_p)], axis=1)
-    waist = _extent(body, pose, np.tile([pelvis[0], top_y, pelvis[2]], (probe, 1)), dirs_p) + COLLAR_CLEARANCE
-    mean_r = float(waist.mean())
-    circumference = 2 * np.pi * (mean_r + 0.5 * length * np.tan(np.radians(flare_deg)))
+    waist = _extent(body, pose, np.tile(centre, (probe, 1)), dirs_p, capsules=trunk_legs) + COLLAR_CLEARANCE
+    tan_f = np.tan(np.radians(flare_deg))
+    circumference = 2 * np.pi * (float(waist.mean()) + 0.5 * length * tan_f)
     rows, cols = _grid_counts(circumference, length, n_particles)
     theta = np.linspace(0.0, 2 * np.pi, cols, endpoint=False)
     r_top = np.interp(theta, theta_p, waist, period=2 * np.pi)
     v = np.linspace(0.0, 1.0, rows)[:, None]
-    radius = r_top[None, :] + np.tan(np.radians(flare_deg)) * length * v
+    radius = r_top[None, :] + tan_f * length * v
     ys = np.broadcast_to(top_y - length * v, radius.shape)
-    dirs = np.stack([np.sin(theta), np.zeros(cols), np.cos(theta)], axis=1)
-    origin = np.stack([np.full(radius.size, pelvis[0]), ys.ravel(), np.full(radius.size, pelvis[2])], axis=1)
-    clear = _extent(body, pose, origin, np.tile(dirs, (rows, 1))).reshape(radius.shape) + REST_CLEARANCE
-    radius = np.maximum.accumulate(np.maximum(radius, clear), axis=0)
-    pos = np.stack([pelvis[0] + radius * dirs[None, :, 0], ys, pelvis[2] + radius * dirs[None, :, 2]], axis=-1)
-    return _build("skirt", pos, True, body, pose, "pelvis", density, seam="release")
+    dirs = np.tile(np.stack([np.sin(theta), np.zeros(cols), np.cos(theta)], axis=1), (rows, 1))
+    origin = np.stack([np.full(radius.size, centre[0]), ys.ravel(), np.full(radius.size, centre[2])], axis=1)
+    clear = _extent(body, pose, origin, dirs, capsules=trunk_legs).reshape(radius.shape) + REST_CLEARANCE
+    clear = np.maximum.accumulate(clear, axis=0)  # once past the hips the cloth does not tuck back in
+    arm = _extent(body, pose, origin, dirs, capsules=arms, first=True).reshape(radius.shape) - REST_CLEARANCE
+    radius = np.maximum(np.minimum(radius, arm), clear)
+    pos = np.stack([centre[0] + radius * dirs[:cols, 0], ys, centre[2] + radius * dirs[:cols, 2]], axis=-1)
+    return _build("skirt", pos, True, body, pose, "spine", density, seam="release",
+                  axis=("pelvis", "chest", float(s_waist)))
 
 
 def make_sheet(rows: int, cols: int, spacing: float = 0.02, *, height: float = 2.0,

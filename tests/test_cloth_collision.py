@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from cloth_client import _kernels as K
-from cloth_client.avatar import pose_keys
+from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
-from cloth_client.collision import CapsuleTrack, collide_np, max_relative_travel, penetration_np, round_cone_np
+from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
+from cloth_client.contact import broad_phase_np, collide_np, pinch_margin_np
 from cloth_client.garment import make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
@@ -21,13 +22,15 @@ B = np.array([[0.5, 0.0, 0.0]])
 
 def _collide(backend: str, x: np.ndarray, v: np.ndarray, a0: np.ndarray, b0: np.ndarray, a1: np.ndarray,
              b1: np.ndarray, radii: np.ndarray, margin: float, friction: float, dt: float,
-             floor: float | None = None) -> np.ndarray:
+             floor: float | None = None, xprev: np.ndarray | None = None) -> np.ndarray:
     contact = np.zeros((len(x), 6))
+    xp = x.copy() if xprev is None else xprev
     if backend == "numba":
         K.collide(x, v, np.ones(len(x)), a0, b0, a1, b1, radii, margin, friction, dt,
-                  0.0 if floor is None else floor, floor is not None, contact)
+                  0.0 if floor is None else floor, floor is not None, contact,
+                  np.full(len(x), K.ALL_CAPSULES), x.copy(), 0.0, xp)
     else:
-        collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact)
+        collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact, xp)
     return contact
 
 
@@ -102,7 +105,44 @@ def test_floor_and_pinch_between_two_surfaces(backend: str) -> None:
     d, _, _ = round_cone_np(x[:1], a, b, r[:, 0], r[:, 1])
     assert d[0, 0] >= -1e-3 and x[0, 1] >= -1e-9  # worked out of both (to within a millimetre)
     assert np.linalg.norm(contact[0, :3]) > 0.5 and np.linalg.norm(contact[0, 3:]) > 0.5  # two surfaces
-    assert v[0, 0] == pytest.approx(0.3)  # pinched: no friction drag
+    np.testing.assert_allclose(v[0], 0.0, atol=1e-12)  # pinched: held by the (still) capsule, no sliding
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_cloth_in_a_narrow_gap_fits_and_stays_with_the_stouter_part(backend: str) -> None:
+    """Two parallel capsules 8 mm apart (a hand against the hip) with a 6 mm margin: the particle
+    between them settles half-way (4 mm from each, outside both) instead of being pushed into one.
+    Where they overlap, cloth caught in both takes the velocity of the thicker capsule, not that of
+    the thin one sliding over it."""
+    margin, dt = 0.006, 0.01
+    radii = np.array([[0.10, 0.10], [0.03, 0.03]])
+    for top, start, gap_d in ((0.138, 0.103, 0.004), (0.125, 0.102, None)):
+        a1 = np.array([[-0.3, 0.0, 0.0], [-0.3, top, 0.0]])
+        b1 = np.array([[0.3, 0.0, 0.0], [0.3, top, 0.0]])
+        a0 = a1 - [[0.0, 0.0, 0.0], [0.02, 0.0, 0.0]]  # the thin capsule slides along +X at 2 m/s
+        b0 = b1 - [[0.0, 0.0, 0.0], [0.02, 0.0, 0.0]]
+        x = np.array([[0.05, start, 0.0]])
+        v = np.array([[1.0, 0.5, 0.0]])
+        _collide(backend, x, v, a0, b0, a1, b1, radii, margin, 0.3, dt)
+        d, _, _ = round_cone_np(x, a1, b1, radii[:, 0], radii[:, 1])
+        if gap_d is not None:
+            np.testing.assert_allclose(d[0], [gap_d, gap_d], atol=1e-9)
+        else:  # 5 mm overlap: out of the thick one, on the boundary of the union
+            assert d[0].max() >= -1e-9 and d[0].min() > -0.006
+            np.testing.assert_allclose(v[0], 0.0, atol=1e-12)
+    # the numba and numpy clearances agree, round a posed body and in the gap above
+    body = default_body()
+    keys = pose_keys(body, standing_pose(body)[None].repeat(2, 0))
+    rng = np.random.default_rng(5)
+    for a, b, r, lo, hi in ((keys.track.a[0], keys.track.b[0], body.capsule_radii, [-0.4, 0.5, -0.3], [0.4, 1.5, 0.3]),
+                            (a1, b1, radii, [-0.3, 0.09, -0.04], [0.3, 0.13, 0.04])):
+        pts = rng.uniform(lo, hi, size=(3000, 3))
+        geo = np.empty((len(a), 13))
+        K.capsule_geometry(a, b, r, margin, geo)
+        got = np.array([K.pinch_margin(*p, geo, 0.5 * (a + b), margin) for p in pts])
+        ref = pinch_margin_np(pts, a, b, r, margin)
+        np.testing.assert_allclose(got, ref, atol=1e-12)
+    assert (ref < margin).sum() > 100 and (ref == margin).sum() > 100
 
 
 def test_penetration_depth_kernel_matches_numpy(rng: np.random.Generator) -> None:
@@ -155,7 +195,7 @@ def test_pins_follow_their_joint() -> None:
     p1[3:6] = [0.0, np.pi / 2, 0.0]  # turn the whole body 90 degrees about +Y
     p1[0] += 0.3
     keys = pose_keys(body, np.stack([p0, p1]))
-    targets = keys.pin_targets(g.pin_joint, g.pin_local)
+    targets = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
     np.testing.assert_allclose(targets[0], g.rest[g.pin_index], atol=1e-12)
     rel0 = g.rest[g.pin_index] - p0[:3]
     np.testing.assert_allclose(targets[1] - p1[:3], rel0 @ rotvec_to_matrix(p1[3:6]).T, atol=1e-9)
@@ -188,6 +228,29 @@ def test_covered_pins_are_released_and_collide() -> None:
     assert d.min() >= 0.006 - 1e-9
 
 
+def test_skirt_waistband_clears_kicks_and_bends_and_hangs_inside_the_arms() -> None:
+    body = default_body()
+    g = make_skirt(body, 600)
+    pose = standing_pose(body)
+    a, b = capsule_endpoints(body, pose)
+    d, _, _ = round_cone_np(g.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
+    assert d.min() > 0.006  # the rest shape clears every capsule, arms included: hands swing outside
+    tip = fk(pose, body)[JOINT_INDEX["l_hand_tip"]]
+    side = (np.abs(g.rest[:, 0]) > 2 * np.abs(g.rest[:, 2])) & (g.rest[:, 1] > tip[1])
+    assert side.sum() > 10 and np.all(np.abs(g.rest[side, 0]) < tip[0])  # inside the hanging arms
+    kick, bow = pose.copy(), pose.copy()
+    hip, spine = 3 + 3 * ROT_JOINTS.index("l_hip"), 3 + 3 * ROT_JOINTS.index("spine")
+    kick[hip:hip + 3] = [-np.pi / 2, 0.0, 0.0]  # thigh horizontal, forwards
+    bow[spine:spine + 3] = [0.3, 0.0, 0.0]  # trunk bent forwards ~17 degrees (deeper: the front is released)
+    for p1 in (kick, bow):
+        keys = pose_keys(body, np.stack([pose, p1]))
+        t = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+        np.testing.assert_allclose(t[0], g.rest[g.pin_index], atol=1e-12)
+        assert not keys.covered(t, 0.006).any()  # no thigh through the waistband, no trunk over it
+    knee = fk(kick, body)[JOINT_INDEX["l_knee"]]
+    assert knee[2] > 0.3  # the kick really lifts the thigh forwards
+
+
 def test_collar_moves_with_the_chest() -> None:
     body = default_body()
     g = make_cape(body, 300)
@@ -199,3 +262,77 @@ def test_collar_moves_with_the_chest() -> None:
     keys = pose_keys(body, np.stack([pose, bent]))
     t = keys.pin_targets(g.pin_joint, g.pin_local)
     assert np.all(t[1, :, 2] > t[0, :, 2] + 0.05)  # the collar went forward with the torso
+
+
+def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
+    """The candidate masks agree with the reference, and collision restricted to the candidates
+    gives exactly the full result, also for particles that moved past the slack since the masks
+    were gathered (they fall back to every capsule)."""
+    body = default_body()
+    pose = standing_pose(body)
+    keys = pose_keys(body, np.stack([pose, pose]))
+    a, b, r = keys.track.a[0], keys.track.b[0], body.capsule_radii
+    rng = np.random.default_rng(11)
+    x = rng.uniform([-0.4, -0.05, -0.3], [0.4, 1.8, 0.3], size=(4000, 3))
+    free = rng.random(len(x)) > 0.1
+    margin, slack = 0.006, 0.02
+    cand, xb = np.empty(len(x), np.int64), np.empty_like(x)
+    K.broad_phase(x, free.astype(float), a, b, r, margin + slack, cand, xb)
+    np.testing.assert_array_equal(cand, broad_phase_np(x, free, a, b, r, margin + slack))
+    np.testing.assert_array_equal(xb, x)
+    assert 0 < (cand != 0).sum() < len(x) and (cand & (cand - 1) != 0).sum() > 50  # several capsules at joints
+    # then the particles move (half of them further than the slack) and the body moves a little
+    x1 = x + rng.normal(0.0, 0.012, x.shape)
+    lift = np.array([0.0, 0.003, 0.0])
+    a1, b1 = a + lift, b + lift
+    v = rng.normal(0.0, 0.5, x.shape)
+    outs = []
+    for mask, ref in ((np.full(len(x), K.ALL_CAPSULES), xb), (cand, xb)):
+        xx, vv, contact = x1.copy(), v.copy(), np.zeros((len(x), 6))
+        K.collide(xx, vv, free.astype(float), a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, True, contact,
+                  mask, ref, slack - 0.003, x)  # the capsules moved 3 mm: the particles may move the rest
+        outs.append((xx, vv, contact))
+    xn, vn, cn = x1.copy(), v.copy(), np.zeros((len(x), 6))
+    collide_np(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn, x)
+    for xx, vv, contact in outs:
+        np.testing.assert_allclose(xx, xn, atol=1e-12)
+        np.testing.assert_allclose(vv, vn, atol=1e-9)
+        np.testing.assert_allclose(contact, cn, atol=1e-12)
+    assert np.abs(xn - x1).max() > 0.01  # contacts did happen
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_particle_pushed_through_a_thin_capsule_goes_back_to_its_side(backend: str) -> None:
+    """A forearm (r = 3 cm) moving down 1 cm onto cloth that the strain limit dragged 4 cm down
+    inside it: projected to the nearest surface the cloth would come out below the arm (through
+    it); it is put back above, where it was relative to the arm at the start of the substep."""
+    r, dt, margin = np.array([[0.03, 0.03]]), 0.004, 0.006
+    a0, b0 = np.array([[0.0, 0.01, 0.0]]), np.array([[0.3, 0.01, 0.0]])
+    a1, b1 = a0 - [0.0, 0.01, 0.0], b0 - [0.0, 0.01, 0.0]
+    xprev = np.array([[0.15, 0.045, 0.0], [0.15, 0.045, 0.0]])  # 5 mm above the arm
+    x = np.array([[0.15, 0.005, 0.0], [0.15, -0.012, 0.0]])  # above / past the axis
+    v = np.array([[0.0, -3.0, 0.0], [0.0, -3.0, 0.0]])
+    _collide(backend, x, v, a0, b0, a1, b1, r, margin, 0.0, dt, xprev=xprev)
+    np.testing.assert_allclose(x[0], [0.15, 0.03 + margin, 0.0], atol=1e-12)  # nearest surface: above anyway
+    np.testing.assert_allclose(x[1], [0.15, 0.03 + margin, 0.0], atol=1e-12)  # not below the arm
+    np.testing.assert_allclose(v[:, 1], -2.5, atol=1e-9)  # no faster than the arm (-2.5 m/s) into it
+    x = np.array([[0.15, -0.012, 0.0]])
+    _collide(backend, x, v[:1].copy(), a0, b0, a1, b1, r, margin, 0.0, dt)  # no memory: nearest surface
+    np.testing.assert_allclose(x[0], [0.15, -0.03 - margin, 0.0], atol=1e-12)
+
+
+def test_covered_kernel_matches_numpy() -> None:
+    body = default_body()
+    pose = standing_pose(body)
+    bent = pose.copy()
+    elbow = 3 + 3 * ROT_JOINTS.index("l_elbow")
+    bent[elbow:elbow + 3] = [0.0, 0.0, 1.2]
+    keys = pose_keys(body, np.stack([pose, bent, pose]))
+    rng = np.random.default_rng(2)
+    pts = rng.uniform([-0.4, 0.6, -0.3], [0.4, 1.5, 0.3], size=(3, 500, 3))
+    reach = np.full(len(body.capsule_radii), 0.006)
+    reach[::3] = 0.04
+    for m in (0.006, reach):
+        got, ref = keys.covered(pts, m), keys.covered(pts, m, backend="numpy")
+        np.testing.assert_array_equal(got, ref)
+        assert 20 < got.sum() < 480

@@ -7,19 +7,16 @@ import numpy as np
 import pytest
 
 from cloth_client import _kernels as K
-from cloth_client.cloth import (
-    ClothParams,
-    build_model,
-    drag_forces_np,
-    energy,
-    initial_state,
-    spring_forces_np,
-    step,
-    structural_strain,
-)
+from cloth_client.cloth import ClothParams, build_model, energy, initial_state, step, structural_strain
 from cloth_client.collision import CapsuleTrack
-from cloth_client.constraints import line_limit_np, long_range_attach_np, strain_limit_np
 from cloth_client.garment import make_cape, make_sheet, make_skirt
+from cloth_client.reference import (
+    drag_forces_np,
+    line_limit_np,
+    long_range_attach_np,
+    spring_forces_np,
+    strain_limit_np,
+)
 from protocol.skeleton import default_body
 
 EMPTY = CapsuleTrack(np.zeros((2, 0, 3)), np.zeros((2, 0, 3)), np.zeros((0, 2)))
@@ -232,6 +229,17 @@ def test_stable_substep_and_planning() -> None:
     b[1, 0, 0] += 0.5  # one end travels 0.5 m = 10 radii within the step
     fast = CapsuleTrack(a, b, np.full((1, 2), 0.05))
     assert plan_substeps(model, fast, 1 / 60) >= 20
+    # with the cloth's state, only capsules that can reach the cloth within the step count
+    state = initial_state(model)
+    centre = g.rest.mean(axis=0)
+    lo, hi = g.rest.min(axis=0), g.rest.max(axis=0)
+    for offset, refined in ((np.zeros(3), True), (np.array([0.0, hi[1] - lo[1] + 0.3, 0.0]), False)):
+        a_k = np.stack([centre + offset, centre + offset + [0.2, 0.0, 0.0]])[:, None]
+        track = CapsuleTrack(a_k, a_k + np.array([0.0, 0.1, 0.0]), np.full((1, 2), 0.05))
+        assert (plan_substeps(model, track, 1 / 60, state) >= 8) == refined
+        assert plan_substeps(model, track, 1 / 60) >= 8  # without the state: every capsule counts
+    state.v[0] = [0.0, 40.0, 0.0]  # a particle fast enough to reach the far capsule: it counts again
+    assert plan_substeps(model, track, 1 / 60, state) >= 8
 
 
 def test_bad_inputs_are_rejected() -> None:

@@ -1,5 +1,9 @@
-"""Strain limiting: the constraint passes that keep the cloth from over-stretching.
+"""Plain numpy references of the solver kernels (:mod:`cloth_client._kernels`): strain limiting,
+spring and drag forces, and the whole substep of :func:`cloth_client.cloth.step`
+(``backend="numpy"``). Tests compare them with the kernels; they are far too slow for real time.
 
+Strain limiting
+---------------
 Soft springs alone (stiff ones would need tiny explicit substeps) let a hanging cape sag by tens of
 percent, so after every integration the positions are projected back (Provot 1995), in three
 complementary passes:
@@ -23,11 +27,19 @@ passes; the functions here are their numpy references.
 from __future__ import annotations
 
 import itertools
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["line_limit_np", "long_range_attach_np", "move_np", "strain_limit_np"]
+from .collision import CapsuleTrack, interpolate_keys
+from .contact import collide_np
+
+if TYPE_CHECKING:
+    from .cloth import ClothModel
+
+__all__ = ["drag_forces_np", "line_limit_np", "long_range_attach_np", "move_np", "spring_forces_np",
+           "strain_limit_np", "substeps_np"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -113,3 +125,77 @@ def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: flo
     move[:, 1:] += lam[..., None] * n
     move[:, :-1] -= lam[..., None] * n
     move_np(x, lines.ravel(), (w[..., None] * move).reshape(-1, 3), contact)
+
+
+def spring_forces_np(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64) -> F64:
+    """Hooke + axial damping forces ``(N, 3)`` of ``springs (S, 2)`` (reference of ``K.spring_forces``)."""
+    d = x[springs[:, 1]] - x[springs[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    ok = length > 1e-12
+    u = np.where(ok[:, None], d / np.where(ok, length, 1.0)[:, None], 0.0)
+    dvn = np.einsum("ij,ij->i", v[springs[:, 1]] - v[springs[:, 0]], u)
+    fs = np.where(ok, k * (length - rest) + kd * dvn, 0.0)[:, None] * u
+    f = np.zeros_like(x)
+    for c in range(3):
+        f[:, c] = np.bincount(springs[:, 0], fs[:, c], len(x)) - np.bincount(springs[:, 1], fs[:, c], len(x))
+    return f
+
+
+def drag_forces_np(x: F64, v: F64, tris: I64, coeff: float, wind: F64) -> F64:
+    """Quadratic normal air drag ``(N, 3)`` (reference of ``K.drag_forces``)."""
+    c = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]]) / 6.0
+    av = np.stack([np.bincount(tris.ravel(), np.repeat(c[:, d], 3), len(x)) for d in range(3)], axis=1)
+    area = np.linalg.norm(av, axis=1)
+    n = av / np.maximum(area, 1e-300)[:, None]
+    vn = np.einsum("ij,ij->i", v - wind, n)
+    out: F64 = np.where((area >= 1e-16)[:, None], -(coeff * area * vn * np.abs(vn))[:, None] * n, 0.0)
+    return out
+
+
+def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: int) -> None:
+    p = model.params
+    for _ in range(sweeps):
+        for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h),
+                            (model.lines_s, model.rest_s)):
+            line_limit_np(x, inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
+
+
+def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,
+                 n: int, dt_total: float, mass_damping: float) -> None:
+    p, g = model.params, model.garment
+    dt = dt_total / n
+    free = inv_mass > 0
+    grav, wind = np.asarray(p.gravity), np.asarray(p.wind)
+    for step_i in range(n):
+        s0, s1 = step_i / n, (step_i + 1) / n
+        f = spring_forces_np(x, v, model.springs, model.rest, model.k, model.kd)
+        if p.air_density * p.drag_coefficient > 0:
+            f += drag_forces_np(x, v, g.triangles, 0.5 * p.air_density * p.drag_coefficient, wind)
+        xp = x.copy()
+        v[free] = (v[free] + dt * (f[free] * inv_mass[free, None] + grav)) / (1.0 + mass_damping * dt)
+        x[free] += dt * v[free]
+        target = interpolate_keys(pins, s1)
+        x[pin_idx] = target
+        v[pin_idx] = (target - xp[pin_idx]) / dt
+        a0, b0 = track.at(s0)
+        a1, b1 = track.at(s1)
+        contact = np.zeros((len(x), 6))
+        for _ in range(p.limit_iterations):
+            long_range_attach_np(x, inv_mass, g.anchor, model.reach)
+            _line_pass(x, model, inv_mass, contact, p.limit_sweeps)
+            strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
+            v[free] = (x[free] - xp[free]) / dt
+            collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact, xp)
+        for _ in range(max(p.final_rounds, 1)):
+            before = x.copy()
+            if p.final_rounds > 0:
+                contact[:] = 0.0
+            _line_pass(x, model, inv_mass, contact, p.final_sweeps)
+            strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
+                            1 if p.final_sweeps > 0 else 0, contact)
+            v += (x - before) / dt
+            if p.final_rounds > 0:  # friction was applied in the interleaved passes already
+                collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, 0.0, dt, p.floor, contact, xp)
+        speed = np.linalg.norm(v, axis=1)
+        fast = free & (speed > p.max_speed)
+        v[fast] *= (p.max_speed / speed[fast])[:, None]

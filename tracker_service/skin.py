@@ -14,8 +14,11 @@ mask's distance transform, and scores where a template puts the hands against it
 ``u_h(T)`` is the hand centre (mid-point of wrist and finger tips) of the template's pose, moved by
 the same placement ``(dx, dy, s)`` as its silhouette. The cost is added to eq. 6's negative log
 likelihood (:func:`tracker_service.tree_filter.step`), i.e. the two cues are treated as
-independent. The extra skin of the face, neck, forearms or legs does not hurt: a template is only
-asked whether its hands land on skin.
+independent. The extra skin of the face, neck, forearms or legs does not hurt that term: a
+template is only asked whether its hands land on skin. The reverse term (:func:`cover_cost`) asks
+the opposite: skin pixels farther than a limb's width from every skin-bearing bone of the template
+(arms, neck and head, legs) cost, so hands held on the chest are not explained by a template whose
+arms hang at its sides. :func:`skin_cost` evaluates both in one numba kernel.
 """
 
 from __future__ import annotations
@@ -103,7 +106,7 @@ class SkinObservation:
         has no skin at all.
     fraction : float
         Skin pixels over silhouette pixels (a shirt of skin colour makes this large, and the cue
-        weak: :func:`hand_cost` is then switched off by the caller's ``max_fraction``).
+        weak: the filter then switches the cue off, ``FilterParams.skin_max_fraction``).
     """
 
     mask: NDArray[np.bool_]

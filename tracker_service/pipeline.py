@@ -221,8 +221,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     fstate = state.filter
     if not config.occlusion:
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
-    skin = (observe_skin(frame, mask, config.skin)
-            if config.skin is not None and frame.ndim == 3 and frame.shape[2] == 3 else None)
+    skin = observe_skin(frame, mask, config.skin) if config.skin is not None else None
     fstate, est = step(fstate, db, feats, config.filter, obs, skin)
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()

@@ -32,7 +32,6 @@ from .placement import placement_columns, placement_rows
 from .pose_pruning import prune_poses
 from .silhouette_distance import RunSet
 from .silhouette_render import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
-from .skin import leaf_joint_points
 from .template_tree import PackedMaskDistance, build_tree, pack_masks
 from .tree_filter import FilterDB
 
@@ -318,7 +317,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
         level_column=level_column, ref_column=ref_column,
         level_bottom=level_bottom, ref_bottom=ref_bottom,
-        leaf_points=leaf_joint_points(leaf_poses, body, cam),
+        leaf_points=cam.project(joints[leaf_tpl]).astype(np.float32),  # the leaves' joints, already posed
     )
     stats["total_s"] = time.perf_counter() - t0
     log.info("database: %s", stats)

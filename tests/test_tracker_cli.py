@@ -32,11 +32,13 @@ def test_tracker_options_build_the_config() -> None:
 
     def ns(**kw: object) -> argparse.Namespace:
         base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
-                "no_smoothing": False}
+                "no_smoothing": False, "pose": "mean"}
         return argparse.Namespace(**(base | kw))
 
     cfg = _config(ns())
     assert cfg.filter.max_heading is None and cfg.skin is not None and cfg.smoothing is not None
+    assert cfg.use_mean_pose and cfg.filter.mean_temperature > 1.0
+    assert not _config(ns(pose="map")).use_mean_pose
     cfg = _config(ns(max_heading=35.0, no_skin=True, no_smoothing=True, body="wTY"))
     assert cfg.filter.max_heading == pytest.approx(math.radians(35.0))
     assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)

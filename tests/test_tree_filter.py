@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol import fk
+from protocol import POSE_SIZE, fk
 from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
 from tracker_service.db_build import heading_of, set_heading
@@ -74,7 +74,7 @@ def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-unt
     poses = set_heading(poses, heading_of(poses) - heading_of(poses[:1])[0])
     truth = fk(poses, subject)
     st = initial_state()
-    errs = []
+    errs, errs_mean = [], []
     for f in range(0, len(poses), 2):
         mask = render_silhouette(truth[f], subject.capsule_radii, cam)
         st, est = step(st, db, preprocess(mask), FilterParams(), observed_placement(mask, cam))
@@ -84,7 +84,28 @@ def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-unt
         errs.append(np.linalg.norm((j - j[0]) - (truth[f] - truth[f, 0]), axis=1).mean())
         assert np.linalg.norm(pose[:3] - truth[f, 0]) < 0.25
         assert 0.0 <= est.confidence <= 1.0 and len(est.evaluations) == 3
+        mean = est.pose_mean.copy()
+        mean[:3] = placement_to_root(est.placement, mean[:3], cam)
+        jm = fk(mean, body)
+        errs_mean.append(np.linalg.norm((jm - jm[0]) - (truth[f] - truth[f, 0]), axis=1).mean())
     assert np.mean(errs) < 0.08  # the take is in the database: tracked within a few cm
+    assert np.mean(errs_mean) < 0.08
+
+
+def test_tempered_weights_hedge_between_modes() -> None:
+    from tracker_service.tree_filter import _mean_pose, _tempered
+
+    w = np.array([0.9, 0.09, 0.01])
+    assert _tempered(w, 1.0) is w
+    t = _tempered(w, 5.0)
+    assert t.sum() == pytest.approx(1.0) and np.all(np.diff(t) < 0)  # same order, flatter
+    assert t[0] < w[0] and t[2] > w[2]
+    # two leaves differing in one joint angle: the tempered mean lies between them, nearer the best
+    poses = np.zeros((2, POSE_SIZE))
+    poses[1, 3 + 3 * 5] = 1.0  # a rotation of 1 rad about x of one joint
+    for temp, lo, hi in ((1.0, 0.0, 0.15), (5.0, 0.3, 0.5)):
+        m = _mean_pose(poses, _tempered(np.array([0.9, 0.1]), temp))
+        assert lo < m[3 + 3 * 5] < hi
 
 
 def test_database_round_trip_and_damage(small_db, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

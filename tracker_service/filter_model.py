@@ -129,6 +129,9 @@ class FilterParams:
         ``m`` of eq. 14.
     support : int
         Leaves carried to the next frame.
+    mean_temperature : float
+        The posterior-mean pose weighs the support leaves by ``posterior ** (1 / T)``: ``T`` > 1
+        hedges between the modes of an ambiguous silhouette (1: the posterior itself).
     step_px : float
         Placement search step (full-resolution pixels) at the coarsest level.
     step_scale : float
@@ -171,6 +174,7 @@ class FilterParams:
     max_heading: float | None = None
     occlusion_m: float = 5.0
     support: int = 48
+    mean_temperature: float = 5.0
     step_px: float = 8.0
     step_scale: float = 0.05
     lost_distance: float = 0.15

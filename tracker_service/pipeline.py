@@ -64,7 +64,8 @@ class TrackerConfig:
     body_candidates : tuple of str
         Body models considered by the selection (empty: keep the database's body).
     use_mean_pose : bool
-        Publish the posterior-mean pose instead of the MAP pose.
+        Publish the posterior-mean pose (tempered, ``FilterParams.mean_temperature``) rather than
+        the MAP leaf's pose: on an ambiguous silhouette the mean hedges between the modes.
     depth_from_feet : bool
         Take the subject's depth from the silhouette's feet line (scaled for the body model)
         rather than from the scale of the best template fit.
@@ -89,7 +90,7 @@ class TrackerConfig:
     start_radius: float = 0.25
     init_frames: int = 5
     body_candidates: tuple[str, ...] = ()
-    use_mean_pose: bool = False
+    use_mean_pose: bool = True
     depth_from_feet: bool = True
     skin: SkinModel | None = field(default_factory=SkinModel)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)

@@ -86,6 +86,9 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
         p.add_argument("--no-skin", action="store_true", help="silhouettes only (no skin colour cue for the hands)")
         p.add_argument("--no-smoothing", action="store_true", help="publish the raw per-frame estimate "
                                                                   "(no One Euro smoothing)")
+        p.add_argument("--pose", choices=("mean", "map"), default="mean",
+                       help="publish the posterior-mean pose (default: hedges between the modes of an "
+                            "ambiguous silhouette) or the MAP leaf's pose")
 
     rp = sub.add_parser("run", parents=list(parents), help="the tracker daemon: frames -> poses over Zenoh",
                         description="Track the person in front of the camera and publish PoseFrames on "
@@ -218,6 +221,8 @@ def _config(args: argparse.Namespace) -> Any:
         cfg = replace(cfg, skin=None)
     if args.no_smoothing:
         cfg = replace(cfg, smoothing=None)
+    if args.pose == "map":
+        cfg = replace(cfg, use_mean_pose=False)
     return cfg
 
 

@@ -130,6 +130,14 @@ def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np
     return out
 
 
+def _tempered(w: NDArray[np.float64], temperature: float) -> NDArray[np.float64]:
+    """Weights ``w ** (1 / T)`` renormalised (``T`` = 1: ``w`` itself)."""
+    if temperature == 1.0:
+        return w
+    t = np.power(np.maximum(w, 1e-300), 1.0 / temperature)
+    return t / t.sum()
+
+
 def _placement_cost(places: NDArray[np.float64], pred: NDArray[np.float64], params: FilterParams
                     ) -> NDArray[np.float64]:
     """Negative log prior of placements around the predicted ones (Gaussian in shift and scale);
@@ -282,7 +290,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     if reinit:
         new_state = initial_state(place, state.reinits + 1)
     est = Estimate(
-        leaf=map_leaf, pose_map=db.leaf_poses[map_leaf].astype(np.float64), pose_mean=_mean_pose(poses, w),
+        leaf=map_leaf, pose_map=db.leaf_poses[map_leaf].astype(np.float64),
+        pose_mean=_mean_pose(poses, _tempered(w, params.mean_temperature)),
         placement=place, distance=dist,
         confidence=float(np.exp(-0.5 * (dist / params.confidence_scale) ** 2)),
         visibility=vis.astype(np.float32), evaluations=tuple(evals), reinitialised=reinit,

@@ -17,9 +17,11 @@ from tracker_service.placement import (
     placement_to_root,
     reference_floor_row,
     scaled_placement,
+    silhouette_rows,
     template_bottoms,
     template_columns,
     template_columns_reference,
+    template_tops,
 )
 from tracker_service.silhouette_distance import RunSet, mask_to_runs, runs_to_mask
 from tracker_service.silhouette_render import render_silhouette, silhouette_runs
@@ -135,14 +137,53 @@ def test_a_leaping_template_gets_a_larger_predicted_scale(small_db) -> None:  # 
     standing, airborne = int(np.nanargmin(np.abs(b - db.ref_bottom))), int(np.nanargmin(b))
     assert b[airborne] < db.ref_bottom - 3
     obs = np.array([0.0, 0.0, 1.1])
-    pred = _node_predictions(db, lvl, np.array([standing, airborne]), obs, 1.0, obs)
+    pred = _node_predictions(db, lvl, np.array([standing, airborne]), obs, 1.0, obs)[:, 0]
     cy = db.center[1]
     assert pred[0, 2] == pytest.approx(1.1 * (db.ref_bottom - cy) / (b[standing] - cy), rel=1e-9)
     assert pred[1, 2] == pytest.approx(1.1 * (db.ref_bottom - cy) / (b[airborne] - cy), rel=1e-9)
     assert pred[1, 2] > pred[0, 2]
     # no observation (feet out of view): the motion prediction for every node
     none = _node_predictions(db, lvl, np.array([standing, airborne]), obs, 0.0, None)
-    np.testing.assert_array_equal(none, np.repeat(obs[None], 2, axis=0))
+    np.testing.assert_array_equal(none[:, 0], np.repeat(obs[None], 2, axis=0))
+    assert none.shape == (2, 1, 3)
+
+
+def test_height_hypothesis_gives_the_silhouettes_height_and_lowest_row(small_db) -> None:  # type: ignore[no-untyped-def]
+    """The second hypothesis scales each template to the observed height and puts its lowest row
+    on the observed one (a body off the floor keeps its height; its feet line lies)."""
+    from tracker_service.tree_filter import _node_predictions
+
+    db, *_ = small_db
+    lvl = db.tree.n_levels - 1
+    nodes = np.arange(0, len(db.level_bottom[lvl]), 7)
+    rows = np.array([40.0, 190.0])
+    obs = np.array([1.0, 0.0, 1.0])
+    hyp = _node_predictions(db, lvl, nodes, obs, 0.7, obs, rows, (0.7, 1.3))
+    assert hyp.shape == (len(nodes), 2, 3)
+    top, bottom, cy = db.level_top[lvl][nodes], db.level_bottom[lvl][nodes], db.center[1]
+    s = np.clip(150.0 / (bottom - top), 0.7, 1.3)
+    np.testing.assert_allclose(hyp[:, 1, 2], s)
+    ok = s == 150.0 / (bottom - top)
+    assert ok.mean() > 0.9
+    # a template row y is drawn at c_y + s (y - c_y) + dy: the lowest row lands on the observed one
+    np.testing.assert_allclose((cy + hyp[:, 1, 2] * (bottom - cy) + hyp[:, 1, 1]), 190.0)
+    np.testing.assert_allclose((cy + hyp[ok, 1, 2] * (top[ok] - cy) + hyp[ok, 1, 1]), 40.0)
+
+
+def test_template_tops_at_every_level(small_db) -> None:  # type: ignore[no-untyped-def]
+    db, *_ = small_db
+    shapes = ((60, 80), (120, 160), (240, 320))
+    for lvl, shape in enumerate(shapes):
+        runs = db.level_runs[lvl]
+        got = template_tops(runs, db.level_scale[lvl])
+        for i in range(0, len(runs), max(1, len(runs) // 30)):
+            rows = np.flatnonzero(runs_to_mask(runs.runs(i), shape).any(axis=1))
+            assert got[i] == pytest.approx((rows[0] + 0.5) / db.level_scale[lvl] - 0.5)
+        np.testing.assert_array_equal(got, db.level_top[lvl])
+    mask = np.zeros((240, 320), bool)
+    assert silhouette_rows(mask) is None
+    mask[30:201, 100:140] = True
+    np.testing.assert_array_equal(silhouette_rows(mask), [30.0, 200.0])
 
 
 def test_feet_cut_off_by_the_image_border_measure_nothing() -> None:

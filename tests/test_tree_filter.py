@@ -11,7 +11,7 @@ from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
 from tracker_service.db_build import heading_of, set_heading
 from tracker_service.features import preprocess
-from tracker_service.placement import observed_placement, placement_to_root
+from tracker_service.placement import observed_placement, placement_to_root, silhouette_rows
 from tracker_service.silhouette_render import render_silhouette
 from tracker_service.template_db import DatabaseError, load_db
 from tracker_service.tree_filter import FilterParams, initial_state, predict_leaves, step
@@ -90,6 +90,34 @@ def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-unt
         errs_mean.append(np.linalg.norm((jm - jm[0]) - (truth[f] - truth[f, 0]), axis=1).mean())
     assert np.mean(errs) < 0.08  # the take is in the database: tracked within a few cm
     assert np.mean(errs_mean) < 0.08
+
+
+def test_a_leap_is_not_taken_for_a_step_back(small_db) -> None:  # type: ignore[no-untyped-def]
+    """A body lifted 30 cm off the floor: its feet line reads as ~1 m further away; the height
+    hypothesis keeps the depth (and puts the root up)."""
+    db, body, motions, _, _ = small_db
+    cam = default_camera()
+    poses = motions[0].poses.copy()
+    poses = set_heading(poses, heading_of(poses) - heading_of(poses[:1])[0])
+    for height_hypothesis, tol in ((True, 0.15), (False, None)):
+        st = initial_state()
+        depth_err, height_err = [], []
+        for f in range(0, 50, 2):
+            pose = poses[f].copy()
+            lift = 0.3 * np.sin(np.pi * (f - 30) / 20) if 30 <= f < 50 else 0.0
+            pose[1] += lift
+            truth = fk(pose, body)
+            mask = render_silhouette(truth, body.capsule_radii, cam)
+            st, est = step(st, db, preprocess(mask), FilterParams(height_hypothesis=height_hypothesis),
+                           observed_placement(mask, cam), observed_rows=silhouette_rows(mask))
+            root = placement_to_root(est.placement, est.pose_map[:3], cam)
+            if lift > 0.15:
+                depth_err.append(abs(float(cam.depth(root)) - float(cam.depth(truth[0]))))
+                height_err.append(abs(root[1] - truth[0, 1]))
+        if tol is not None:
+            assert max(depth_err) < tol and max(height_err) < 0.1
+        else:  # the feet line alone: the failure this hypothesis removes
+            assert max(depth_err) > 0.4
 
 
 def test_tempered_weights_hedge_between_modes() -> None:

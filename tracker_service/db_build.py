@@ -308,7 +308,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     )
     level_scale = tuple(c.width / cam.width for c in cams)
     level_column, ref_column = placement_columns(level_runs, level_scale, cam)
-    level_bottom, ref_bottom = placement_rows(level_runs, level_scale, cam)
+    level_bottom, level_top, ref_bottom = placement_rows(level_runs, level_scale, cam)
     db = FilterDB(
         tree=tree, level_runs=level_runs, level_scale=level_scale,
         center=(cam.cx, cam.cy), leaf_poses=leaf_poses.astype(np.float32), leaf_visible=vis,
@@ -316,7 +316,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         trans_idx=dst.astype(np.int64), trans_p=trans_p,
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
         level_column=level_column, ref_column=ref_column,
-        level_bottom=level_bottom, ref_bottom=ref_bottom,
+        level_bottom=level_bottom, level_top=level_top, ref_bottom=ref_bottom,
         leaf_points=cam.project(joints[leaf_tpl]).astype(np.float32),  # the leaves' joints, already posed
     )
     stats["total_s"] = time.perf_counter() - t0

@@ -56,6 +56,8 @@ class FilterDB:
         Each node's lowest template row at the reference placement, full-resolution pixels
         (:func:`tracker_service.placement.template_bottoms`); empty: every template is taken to
         stand on the floor.
+    level_top : tuple of (n_L,) float64, optional
+        Each node's highest template row (:func:`tracker_service.placement.template_tops`).
     ref_bottom : float
         The row a standing template's lowest row lies on (the observed feet line's reference).
     leaf_points : (NL, J, 2) float32, optional
@@ -80,6 +82,7 @@ class FilterDB:
     level_column: tuple[NDArray[np.float64], ...] = ()
     ref_column: float = float("nan")
     level_bottom: tuple[NDArray[np.float64], ...] = ()
+    level_top: tuple[NDArray[np.float64], ...] = ()
     ref_bottom: float = float("nan")
     leaf_points: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2), np.float32))
 
@@ -129,6 +132,16 @@ class FilterParams:
         ``m`` of eq. 14.
     support : int
         Leaves carried to the next frame.
+    height_hypothesis : bool
+        Besides the feet-on-the-floor placement, evaluate each node at the scale that gives it the
+        silhouette's height, its lowest row on the observed one (a leap, a run's flight phase).
+    airborne_cost : float
+        Prior cost (negative log odds) of the height hypothesis against the feet on the floor.
+    airborne_gate : float
+        The height hypothesis is evaluated only when the feet line rose (its scale is below the
+        motion prediction's by more than this fraction): the person stepped back or left the floor.
+    airborne_scale_range : float
+        The height hypothesis's scale stays within this fraction of the motion prediction's.
     mean_temperature : float
         The posterior-mean pose weighs the support leaves by ``posterior ** (1 / T)``: ``T`` > 1
         hedges between the modes of an ambiguous silhouette (1: the posterior itself).
@@ -175,6 +188,10 @@ class FilterParams:
     occlusion_m: float = 5.0
     support: int = 48
     mean_temperature: float = 5.0
+    height_hypothesis: bool = True
+    airborne_cost: float = 3.0
+    airborne_gate: float = 0.04
+    airborne_scale_range: float = 0.06
     step_px: float = 8.0
     step_scale: float = 0.05
     lost_distance: float = 0.15

@@ -29,7 +29,7 @@ from .background import BackgroundModel, BackgroundParams, learn_background, sub
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
 from .features import Distance, preprocess
-from .placement import feet_scale, observed_placement, placement_to_root, scaled_placement
+from .placement import feet_scale, observed_placement, placement_to_root, scaled_placement, silhouette_rows
 from .skin import SkinModel, observe_skin
 from .smoothing import OneEuroParams, SmoothState, smooth_pose
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
@@ -223,7 +223,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if not config.occlusion:
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
     skin = observe_skin(frame, mask, config.skin) if config.skin is not None else None
-    fstate, est = step(fstate, db, feats, config.filter, obs, skin)
+    fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask))
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     body_changed = False

@@ -133,21 +133,47 @@ def template_bottoms(runs: RunSet, level_scale: float) -> NDArray[np.float64]:
     (T,) float64
         Row index; NaN for an empty template.
     """
+    return _extreme_rows(runs, level_scale, np.maximum)
+
+
+def template_tops(runs: RunSet, level_scale: float) -> NDArray[np.float64]:
+    """Highest (smallest) row of every template of a run set, full-resolution pixels; with
+    :func:`template_bottoms`, the template's height in the image (leap-invariant, unlike the feet
+    line).
+
+    Returns
+    -------
+    (T,) float64
+        Row index; NaN for an empty template.
+    """
+    return _extreme_rows(runs, level_scale, np.minimum)
+
+
+def _extreme_rows(runs: RunSet, level_scale: float, op: np.ufunc) -> NDArray[np.float64]:
     ptr = np.asarray(runs.ptr, np.int64)
     rows = np.asarray(runs.data[:, 0], np.float64)
     out = np.full(len(ptr) - 1, np.nan)
     full = ptr[1:] > ptr[:-1]
     if rows.size:
-        out[full] = np.maximum.reduceat(rows, ptr[:-1][full])
+        out[full] = op.reduceat(rows, ptr[:-1][full])
     return (out + 0.5) / level_scale - 0.5
 
 
 def placement_rows(level_runs: tuple[RunSet, ...], level_scale: tuple[float, ...], camera: Camera
-                   ) -> tuple[tuple[NDArray[np.float64], ...], float]:
-    """The ``level_bottom`` and ``ref_bottom`` fields of a :class:`~tracker_service.tree_filter.FilterDB`:
-    each node's lowest template row and the floor row a standing template's lowest row lies on."""
-    rows = tuple(template_bottoms(r, sc) for r, sc in zip(level_runs, level_scale, strict=True))
-    return rows, reference_floor_row(camera)
+                   ) -> tuple[tuple[NDArray[np.float64], ...], tuple[NDArray[np.float64], ...], float]:
+    """The ``level_bottom``, ``level_top`` and ``ref_bottom`` fields of a
+    :class:`~tracker_service.tree_filter.FilterDB`: each node's lowest and highest template rows and
+    the floor row a standing template's lowest row lies on."""
+    pairs = tuple(zip(level_runs, level_scale, strict=True))
+    bottoms = tuple(template_bottoms(r, sc) for r, sc in pairs)
+    tops = tuple(template_tops(r, sc) for r, sc in pairs)
+    return bottoms, tops, reference_floor_row(camera)
+
+
+def silhouette_rows(mask: NDArray[np.bool_]) -> NDArray[np.float64] | None:
+    """``(top, bottom)`` rows of a silhouette (None when empty)."""
+    ys = np.flatnonzero(mask.any(axis=1))
+    return None if len(ys) == 0 else np.array([float(ys[0]), float(ys[-1])])
 
 
 def feet_in_view(mask: NDArray[np.bool_], margin_px: int = 2) -> bool:

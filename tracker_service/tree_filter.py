@@ -147,31 +147,77 @@ def _placement_cost(places: NDArray[np.float64], pred: NDArray[np.float64], para
 
 
 def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: NDArray[np.float64],
-                      obs_weight: float, obs: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-    """Predicted placement of each node.
+                      obs_weight: float, obs: NDArray[np.float64] | None = None,
+                      rows: NDArray[np.float64] | None = None, scale_range: tuple[float, float] = (0.0, np.inf)
+                      ) -> NDArray[np.float64]:
+    """Predicted placements of each node: one per placement hypothesis.
 
-    The observed placement assumes every template's lower-body column is the root's and its lowest
-    row is on the floor. A template whose column lies elsewhere (a leg or arm to one side) is
-    shifted by the difference; one whose feet are off the floor (a leap, a stride, a raised knee)
-    has the observed scale multiplied by ``(floor - c_y) / (bottom - c_y)`` so that its own lowest
-    row, not the floor row, meets the observed feet line. Both corrections enter in the
-    observation's share ``obs_weight`` of the prediction.
+    Hypothesis 0, **feet on the floor**: the observed placement assumes every template's lower-body
+    column is the root's and its lowest row is on the floor. A template whose column lies elsewhere
+    (a leg or arm to one side) is shifted by the difference; one whose feet are off the floor (a
+    stride, a raised knee) has the observed scale multiplied by ``(floor - c_y) / (bottom - c_y)``
+    so that its own lowest row, not the floor row, meets the observed feet line. Both corrections
+    enter in the observation's share ``obs_weight`` of the prediction.
+
+    Hypothesis 1, **the silhouette's height** (with ``rows``): the whole body may be off the floor
+    (a leap, the flight phase of a run), where the feet line reads as a person moving away (a
+    40 cm leap looked 2 m further away). The height of the silhouette does not change in a leap:
+    the scale is the observed height over the template's, and the template is shifted vertically
+    so that its lowest row meets the observed one. The silhouette decides between the two
+    (:func:`step` evaluates both; the placement prior is their mixture).
+
+    Parameters
+    ----------
+    rows : (2,) float, optional
+        The observed silhouette's top and bottom rows (full resolution).
+    scale_range : (float, float)
+        Bounds of the height hypothesis's scale (around the motion prediction's: a leap does not
+        change the depth, and a pose the database lacks must not buy the silhouette's height with
+        a jump in depth).
 
     Returns
     -------
-    (n, 3) float64
+    (n, H, 3) float64
+        ``H`` = 1, or 2 with ``rows``.
     """
     out = np.repeat(pred[None], len(nodes), axis=0)
-    if obs_weight > 0 and obs is not None and db.level_bottom and np.isfinite(db.ref_bottom):
-        cy = db.center[1]
-        c = (db.ref_bottom - cy) / np.maximum(db.level_bottom[level][nodes] - cy, 1.0)
+    has_rows = bool(db.level_bottom) and np.isfinite(db.ref_bottom)
+    cy = db.center[1]
+    bottom = db.level_bottom[level][nodes] if has_rows else None
+    if obs_weight > 0 and obs is not None and bottom is not None:
+        c = (db.ref_bottom - cy) / np.maximum(bottom - cy, 1.0)
         c = np.clip(np.nan_to_num(c, nan=1.0), 0.8, 2.0)
         out[:, 2] += obs_weight * obs[2] * (c - 1.0)
         out[:, 1] += obs_weight * obs[1] * (c - 1.0)
+    hyps = [out]
+    if rows is not None and bottom is not None and db.level_top:
+        height = bottom - db.level_top[level][nodes]
+        ok = np.isfinite(height) & (height > 4.0)
+        alt = out.copy()
+        s_h = np.where(ok, (rows[1] - rows[0]) / np.where(ok, height, 1.0), out[:, 2])
+        alt[:, 2] = np.clip(s_h, *scale_range)
+        alt[:, 1] = np.where(ok, rows[1] - cy - alt[:, 2] * (np.nan_to_num(bottom) - cy), out[:, 1])
+        hyps.append(alt)
+    res = np.stack(hyps, axis=1)
     if obs_weight > 0 and db.level_column and np.isfinite(db.ref_column):
-        corr = obs_weight * out[:, 2] * (db.ref_column - db.level_column[level][nodes])
-        out[:, 0] += np.nan_to_num(corr)
-    return out
+        corr = obs_weight * res[..., 2] * (db.ref_column - db.level_column[level][nodes])[:, None]
+        res[..., 0] += np.nan_to_num(corr)
+    return res
+
+
+def _mixture_cost(places: NDArray[np.float64], hyps: NDArray[np.float64], params: FilterParams,
+                  motion_scale: float | None = None) -> NDArray[np.float64]:
+    """Placement prior of ``places`` ``(n, G, 3)`` under the mixture of the nodes' hypotheses
+    ``(n, H, 3)`` (the cheapest hypothesis for each placement). The height hypothesis's scale is
+    held to the motion prediction's ``motion_scale`` (a body off the floor has not changed depth;
+    a wrong pose cannot buy the silhouette's height by a jump in depth)."""
+    costs = [_placement_cost(places, hyps[:, 0, None], params)]
+    if hyps.shape[1] > 1:
+        ref = hyps[:, 1].copy()
+        if motion_scale is not None:
+            ref[:, 2] = motion_scale
+        costs.append(_placement_cost(places, ref[:, None], params) + params.airborne_cost)
+    return np.min(costs, axis=0)
 
 
 def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArray[np.float64],
@@ -191,8 +237,8 @@ def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArr
 
 
 def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
-         observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None
-         ) -> tuple[FilterState, Estimate]:
+         observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None,
+         observed_rows: NDArray[np.float64] | None = None) -> tuple[FilterState, Estimate]:
     """One frame of tree-based filtering.
 
     Parameters
@@ -207,6 +253,9 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         the prediction, and used alone after (re-)initialisation.
     skin : SkinObservation, optional
         The frame's skin evidence (:func:`tracker_service.skin.observe_skin`): where the hands may be.
+    observed_rows : (2,) float, optional
+        Top and bottom rows of the silhouette (:func:`tracker_service.placement.silhouette_rows`):
+        a second placement hypothesis per node from the silhouette's height (a body off the floor).
 
     Returns
     -------
@@ -215,6 +264,13 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     """
     fresh = len(state.leaves) == 0
     pred = state.placement + 0.5 * state.velocity
+    sil_rows = None
+    motion_scale = float(pred[2])
+    cur_rows = None if observed_rows is None else np.asarray(observed_rows, np.float64)
+    if (cur_rows is not None and params.height_hypothesis and observed_placement is not None and not fresh
+            and float(observed_placement[2]) < motion_scale * (1.0 - params.airborne_gate)):
+        sil_rows = cur_rows  # the feet line rose: a step back, or the feet left the floor
+    s_range = (motion_scale * (1.0 - params.airborne_scale_range), motion_scale * (1.0 + params.airborne_scale_range))
     w_obs = 0.0
     obs = None
     if observed_placement is not None:
@@ -225,7 +281,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     tree = db.tree
     n_levels = tree.n_levels
     nodes = np.arange(tree.level_sizes[0], dtype=np.int64)
-    centers = _node_predictions(db, 0, nodes, pred, w_obs, obs)
+    centers = _node_predictions(db, 0, nodes, pred, w_obs, obs, sil_rows, s_range)  # (n, H, 3) at level 0
     evals: list[int] = []
     post = np.zeros(0)
     node_place = centers
@@ -235,10 +291,16 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         shrink = 0.5**lvl
         grid = params.grid[lvl]
         offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
-        d, places = _eval_level(db, features[lvl], lvl, nodes, centers, offs)
+        if centers.ndim == 3:  # several placement hypotheses per node: their grids side by side
+            n_h = centers.shape[1]
+            d, places = _eval_level(db, features[lvl], lvl, np.repeat(nodes, n_h), centers.reshape(-1, 3), offs)
+            d = d.reshape(len(nodes), -1)
+            places = places.reshape(len(nodes), -1, 3)
+        else:
+            d, places = _eval_level(db, features[lvl], lvl, nodes, centers, offs)
         evals.append(d.size)
-        node_pred = _node_predictions(db, lvl, nodes, pred, w_obs, obs)
-        total = 0.5 * (d / params.sigma[lvl]) ** 2 + _placement_cost(places, node_pred[:, None], params)  # eq. 6
+        node_pred = _node_predictions(db, lvl, nodes, pred, w_obs, obs, sil_rows, s_range)
+        total = 0.5 * (d / params.sigma[lvl]) ** 2 + _mixture_cost(places, node_pred, params, motion_scale)  # eq. 6
         total = total + _skin_cost(db, lvl, nodes, places, skin, params)
         best = np.argmin(total, axis=1)
         rows = np.arange(len(nodes))
@@ -268,8 +330,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     offs = _offsets(2.0, 0.01, 3, 3)
     d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
     evals[-1] += d_ref.size
-    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs)
-    total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _placement_cost(places, top_pred[:, None], params)
+    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs, sil_rows, s_range)
+    total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _mixture_cost(places, top_pred, params, motion_scale)
     total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
     best = np.argmin(total, axis=1)
     rows = np.arange(len(top))

@@ -81,6 +81,10 @@ class Garment:
         ``(1 - s) J_a + s J_b + R_joint pin_local``. A plain joint pin has ``a = b = pin_joint``,
         ``s = 0``; the skirt's waistband rides the abdomen's axis (pelvis to chest joint), so it
         stays round the trunk when the spine bends.
+    pin_axis_local : (P, 3) float64 or None
+        Unit direction of that axis in the pin joint's frame in the build pose, for pins whose
+        frame is swung to stay square to the axis (the skirt's waistband: the spine joint's frame
+        tilts differently from the pelvis-to-chest line when the back bends); None for plain joint pins.
     limit_springs : (S_structural, 2) int64
         The structural springs in strain-limiting order (from the pins outwards).
     limit_rest : (S_structural,) float64
@@ -119,6 +123,7 @@ class Garment:
     pin_local: F64
     pin_axis: I64
     pin_axis_s: F64
+    pin_axis_local: F64 | None
     limit_springs: I64
     limit_rest: F64
     limit_batches: I64
@@ -232,6 +237,10 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
         pin_s = np.full(len(pins), float(axis[2]))
     origin = (1.0 - pin_s[:, None]) * joints[pin_axis[:, 0]] + pin_s[:, None] * joints[pin_axis[:, 1]]
     local = np.einsum("pji,pj->pi", rot[pin_joint], x[pins] - origin)  # R^T (x - anchor)
+    axis_local = None
+    if axis is not None:
+        u = joints[pin_axis[:, 1]] - joints[pin_axis[:, 0]]
+        axis_local = np.einsum("pji,pj->pi", rot[pin_joint], u / np.linalg.norm(u, axis=1, keepdims=True))
     order, ptr = _limit_batches(len(x), structural, pins)
     lim = structural[order]
     edges = np.concatenate([structural, shear])
@@ -247,6 +256,7 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
         kind=kind, rest=x.copy(), triangles=tris, structural=structural, structural_rest=rest(structural),
         shear=shear, shear_rest=rest(shear), bend=bend, bend_rest=rest(bend), mass=mass,
         pin_index=pins, pin_joint=pin_joint, pin_local=local, pin_axis=pin_axis, pin_axis_s=pin_s,
+        pin_axis_local=axis_local,
         limit_springs=lim, limit_rest=rest(lim), limit_batches=ptr, anchor=source.astype(np.int64), anchor_dist=dist,
         grid_shape=(rows, cols), wrap=wrap, pose=pose.copy(), seam=seam,
     )

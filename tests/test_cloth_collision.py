@@ -195,7 +195,7 @@ def test_pins_follow_their_joint() -> None:
     p1[3:6] = [0.0, np.pi / 2, 0.0]  # turn the whole body 90 degrees about +Y
     p1[0] += 0.3
     keys = pose_keys(body, np.stack([p0, p1]))
-    targets = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+    targets = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
     np.testing.assert_allclose(targets[0], g.rest[g.pin_index], atol=1e-12)
     rel0 = g.rest[g.pin_index] - p0[:3]
     np.testing.assert_allclose(targets[1] - p1[:3], rel0 @ rotvec_to_matrix(p1[3:6]).T, atol=1e-9)
@@ -244,7 +244,7 @@ def test_skirt_waistband_clears_kicks_and_bends_and_hangs_inside_the_arms() -> N
     bow[spine:spine + 3] = [0.3, 0.0, 0.0]  # trunk bent forwards ~17 degrees (deeper: the front is released)
     for p1 in (kick, bow):
         keys = pose_keys(body, np.stack([pose, p1]))
-        t = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+        t = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
         np.testing.assert_allclose(t[0], g.rest[g.pin_index], atol=1e-12)
         assert not keys.covered(t, 0.006).any()  # no thigh through the waistband, no trunk over it
     knee = fk(kick, body)[JOINT_INDEX["l_knee"]]

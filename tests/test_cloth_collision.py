@@ -11,10 +11,10 @@ from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
 from cloth_client.contact import broad_phase_np, collide_np, pinch_margin_np
-from cloth_client.garment import make_cape, make_sheet, make_skirt
+from cloth_client.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
-from protocol.skeleton import JOINT_INDEX, ROT_JOINTS, default_body, standing_pose
+from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, ROT_JOINTS, default_body, standing_pose
 
 A = np.array([[0.0, 0.0, 0.0]])
 B = np.array([[0.5, 0.0, 0.0]])
@@ -235,6 +235,10 @@ def test_skirt_waistband_clears_kicks_and_bends_and_hangs_inside_the_arms() -> N
     a, b = capsule_endpoints(body, pose)
     d, _, _ = round_cone_np(g.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
     assert d.min() > 0.006  # the rest shape clears every capsule, arms included: hands swing outside
+    hips = [CAPSULE_INDEX[n] for n in ("pelvis", "l_thigh", "r_thigh")]
+    assert d[g.pin_index][:, hips].min() >= REST_CLEARANCE  # in 3D: the hip spheres reach the waist's height
+    spine_y = fk(pose, body)[JOINT_INDEX["spine"], 1]
+    assert spine_y <= g.rest[g.pin_index, 1].min() <= spine_y + 0.01  # raised no more than that takes
     tip = fk(pose, body)[JOINT_INDEX["l_hand_tip"]]
     side = (np.abs(g.rest[:, 0]) > 2 * np.abs(g.rest[:, 2])) & (g.rest[:, 1] > tip[1])
     assert side.sum() > 10 and np.all(np.abs(g.rest[side, 0]) < tip[0])  # inside the hanging arms

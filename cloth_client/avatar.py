@@ -115,7 +115,7 @@ class AvatarKeys:
     rotations: F64
 
     def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64, axis: NDArray[np.int64] | None = None,
-                    axis_s: F64 | None = None) -> F64:
+                    axis_s: F64 | None = None, axis_local: F64 | None = None) -> F64:
         """World positions ``(K + 1, P, 3)`` of pins.
 
         Parameters
@@ -128,6 +128,11 @@ class AvatarKeys:
             Joints ``a, b`` of the bone axis the pin is anchored on (default: the pin's joint).
         axis_s : (P,) float64, optional
             Anchor parameter ``s`` along that axis: the target is ``(1 - s) J_a + s J_b + R pin_local``.
+        axis_local : (P, 3) float64, optional
+            Unit direction of the axis ``J_a -> J_b`` in the joint's frame in the build pose. With it
+            the joint frame ``R`` is first swung by the smallest rotation that carries this direction
+            onto the current axis (the twist about the axis stays the joint's): a ring of pins round
+            a bone stays square to that bone however the joints between ``J_a`` and ``J_b`` bend.
         """
         r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
         if axis is None or axis_s is None:
@@ -135,7 +140,13 @@ class AvatarKeys:
         else:
             s = axis_s[None, :, None]
             origin = (1.0 - s) * self.joints[:, axis[:, 0]] + s * self.joints[:, axis[:, 1]]
-        out: F64 = origin + np.einsum("kpij,pj->kpi", r, pin_local)
+        offset: F64 = np.einsum("kpij,pj->kpi", r, pin_local)
+        if axis is not None and axis_local is not None:
+            u = self.joints[:, axis[:, 1]] - self.joints[:, axis[:, 0]]
+            u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+            c = np.einsum("kpij,pj->kpi", r, axis_local)
+            offset = _swing(c, u, offset)
+        out: F64 = origin + offset
         return out
 
     def push_out(self, points: F64, clearance: float) -> F64:
@@ -170,6 +181,15 @@ class AvatarKeys:
                                     self.track.radii[:, 1])
             out |= (d < margin).any(axis=1)
         return out
+
+
+def _swing(c: F64, u: F64, y: F64) -> F64:
+    """``y (..., 3)`` rotated by the smallest rotation taking unit ``c`` onto unit ``u`` (same shapes;
+    Rodrigues with ``w = c x u``: ``y cos + w x y + w (w . y) / (1 + cos)``)."""
+    w = np.cross(c, u)
+    cos = np.einsum("...i,...i->...", c, u)[..., None]
+    out: F64 = y * cos + np.cross(w, y) + w * np.einsum("...i,...i->...", w, y)[..., None] / np.maximum(1.0 + cos, 1e-9)
+    return out
 
 
 def pose_keys(body: Body, poses: F64) -> AvatarKeys:

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 
 from . import _kernels as K
@@ -48,6 +49,7 @@ __all__ = [
     "plan_substeps",
     "step",
     "structural_strain",
+    "tethers_held",
 ]
 
 F64 = NDArray[np.float64]
@@ -250,6 +252,34 @@ def _max_eigenvalue(x: F64, springs: I64, k: F64, inv_mass: F64) -> float:
         return float(np.abs(stiff).sum(axis=1).max())
 
 
+def tethers_held(model: ClothModel, released: NDArray[np.bool_]) -> tuple[I64, F64]:
+    """Long-range attachments to the pins that are still held while ``released (P,)`` are let go.
+
+    A released pin is a free particle, so the attachments of the cloth below it (and its own) would
+    vanish and a released stretch of a waistband would sag under the garment's weight, stretched
+    far beyond the strain limit. Instead every particle is attached to its nearest *held* pin along
+    the cloth (shortest path over structural and shear springs at rest, as in :func:`build_model`).
+
+    Returns
+    -------
+    anchor : (N,) int64
+        Nearest held pin of every particle (itself when no pin is held: no attachment).
+    reach : (N,) float64
+        Rest distance to it times ``1 + max_stretch``, metres (``inf`` when no pin is held).
+    """
+    g, p = model.garment, model.params
+    held = g.pin_index[~np.asarray(released, dtype=bool)]
+    n = g.n_particles
+    if not p.tethers or len(held) == 0:
+        return np.arange(n, dtype=np.int64), np.full(n, np.inf)
+    edges = np.concatenate([g.structural, g.shear])
+    lengths = np.concatenate([g.structural_rest, g.shear_rest])
+    graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+    dist, _, source = dijkstra(graph, directed=False, indices=held, min_only=True, return_predecessors=True)
+    reach: F64 = dist * (1.0 + p.max_stretch)
+    return source.astype(np.int64), reach
+
+
 def initial_state(model: ClothModel, x: F64 | None = None, t: float = 0.0) -> ClothState:
     """Cloth at rest at ``x`` (default: the garment's rest shape)."""
     pos = np.array(model.garment.rest if x is None else x, dtype=np.float64)
@@ -274,7 +304,7 @@ def plan_substeps(model: ClothModel, track: CapsuleTrack, dt: float, state: Clot
 
 def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F64, dt: float, *,
          released: NDArray[np.bool_] | None = None, n_substeps: int | None = None, extra_damping: float = 0.0,
-         backend: str = "numba") -> ClothState:
+         tethers: tuple[I64, F64] | None = None, backend: str = "numba") -> ClothState:
     """Advance the cloth by ``dt`` seconds.
 
     Parameters
@@ -294,6 +324,8 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
         Force the substep count (default: :func:`plan_substeps`).
     extra_damping : float
         Added to ``params.mass_damping`` for this step, 1/s (used to calm the cloth after a reset).
+    tethers : (anchor (N,) int64, reach (N,) float64), optional
+        Long-range attachments to use instead of the model's (:func:`tethers_held` for released pins).
     backend : {"numba", "numpy"}
 
     Returns
@@ -310,6 +342,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
     if pins.ndim != 3 or pins.shape[1:] != (len(model.garment.pin_index), 3) or pins.shape[0] < 2:
         raise ValueError(f"pin_keys must be (K+1 >= 2, {len(model.garment.pin_index)}, 3), got {pins.shape}")
     inv_mass, pin_idx = model.inv_mass, model.garment.pin_index
+    anchor, reach = tethers if tethers is not None else (model.garment.anchor, model.reach)
     if released is not None and released.any():
         inv_mass = inv_mass.copy()
         inv_mass[pin_idx[released]] = 1.0 / model.garment.mass[pin_idx[released]]
@@ -321,14 +354,14 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
             np.asarray(p.gravity, dtype=np.float64), p.mass_damping + extra_damping,
             model.lim_springs, model.lim_lo, model.lim_hi, p.limit_iterations, p.limit_sweeps, p.final_sweeps,
             p.final_rounds,
-            model.garment.anchor, model.reach,
+            np.ascontiguousarray(anchor, dtype=np.int64), np.ascontiguousarray(reach, dtype=np.float64),
             model.lines_v, model.rest_v, model.lines_h, model.rest_h, model.lines_s, model.rest_s,
             p.max_stretch, p.max_compression,
             pin_idx, pins, track.a, track.b,
             track.radii,
             p.margin, p.friction, 0.0 if p.floor is None else p.floor, p.floor is not None, p.max_speed, n, dt)
     elif backend == "numpy":
-        substeps_np(x, v, model, inv_mass, pin_idx, track, pins, n, dt, p.mass_damping + extra_damping)
+        substeps_np(x, v, model, inv_mass, pin_idx, track, pins, n, dt, p.mass_damping + extra_damping, anchor, reach)
     else:
         raise ValueError(f"unknown backend {backend!r}")
     return ClothState(x, v, state.t + dt, state.substeps + n)

@@ -57,6 +57,7 @@ from .cloth import (
     plan_substeps,
     step,
     structural_strain,
+    tethers_held,
 )
 from .collision import CapsuleTrack, round_cone_np
 from .garment import Garment
@@ -162,6 +163,7 @@ class ClothDriver:
         self._body_end: tuple[F64, F64] | None = None
         self._ghost = np.zeros(len(LIMBS), dtype=bool)
         self._overlap: F64 | None = None
+        self._tethers: dict[bytes, tuple[NDArray[np.int64], F64]] = {}
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -267,7 +269,7 @@ class ClothDriver:
         n_keys = max(1, math.ceil(dt / self.config.key_dt - 1e-9))
         keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)))
         g = self.garment
-        pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+        pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
         released = self._widen(keys.covered(pins, self._seam_margin))
         if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
             # slide the seam over the body part that covers it (always for a collar; for a
@@ -280,10 +282,22 @@ class ClothDriver:
         # substeps planned on the real limbs: a sunk limb's thin stand-in would count as fast
         n_sub = plan_substeps(self.model, keys.track, dt, self.state)
         self.state = step(self.state, self.model, self._ghosted(keys.track), pins, dt, released=released,
-                          n_substeps=n_sub, extra_damping=extra_damping)
+                          n_substeps=n_sub, extra_damping=extra_damping, tethers=self._held_tethers(released))
         self._body_end = (keys.track.a[-1], keys.track.b[-1])  # the capsules at p1, for _measure
         self._free = self.model.inv_mass > 0
         self._free[self.garment.pin_index[released]] = True
+
+    def _held_tethers(self, released: NDArray[np.bool_]) -> tuple[NDArray[np.int64], F64] | None:
+        """Long-range attachments to the held pins while some are released (None: the model's own);
+        cached per released set (:func:`~cloth_client.cloth.tethers_held`)."""
+        if not released.any():
+            return None
+        key = np.packbits(released).tobytes()
+        if key not in self._tethers:
+            if len(self._tethers) >= 512:
+                self._tethers.clear()
+            self._tethers[key] = tethers_held(self.model, released)
+        return self._tethers[key]
 
     def _ghosted(self, track: CapsuleTrack) -> CapsuleTrack:
         """``track`` with the forearms and hands that are sunk into the trunk shrunk to a line.

@@ -32,6 +32,7 @@ from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body, default_body, st
 
 from . import _kernels
 from .avatar import capsule_endpoints
+from .collision import round_cone_np
 
 __all__ = ["DEFAULT_PARTICLES", "GARMENTS", "Garment", "GarmentKind", "grid_topology", "make_cape", "make_garment",
            "make_sheet", "make_skirt"]
@@ -49,6 +50,9 @@ REST_CLEARANCE: Final[float] = 0.012
 #: Distance between a seam (cape collar, skirt waistband) and the body, metres: room for a shrug or
 #: a bend of the trunk before a body part reaches the pinned row.
 COLLAR_CLEARANCE: Final[float] = 0.025
+#: Highest the skirt's waistband may sit above the spine joint to clear the hips by
+#: ``REST_CLEARANCE`` in 3D (metres; it takes 5 mm for the default body).
+WAIST_RAISE_MAX: Final[float] = 0.05
 
 
 @dataclass(frozen=True)
@@ -81,6 +85,10 @@ class Garment:
         ``(1 - s) J_a + s J_b + R_joint pin_local``. A plain joint pin has ``a = b = pin_joint``,
         ``s = 0``; the skirt's waistband rides the abdomen's axis (pelvis to chest joint), so it
         stays round the trunk when the spine bends.
+    pin_axis_local : (P, 3) float64 or None
+        Unit direction of that axis in the pin joint's frame in the build pose, for pins whose
+        frame is swung to stay square to the axis (the skirt's waistband: the spine joint's frame
+        tilts differently from the pelvis-to-chest line when the back bends); None for plain joint pins.
     limit_springs : (S_structural, 2) int64
         The structural springs in strain-limiting order (from the pins outwards).
     limit_rest : (S_structural,) float64
@@ -119,6 +127,7 @@ class Garment:
     pin_local: F64
     pin_axis: I64
     pin_axis_s: F64
+    pin_axis_local: F64 | None
     limit_springs: I64
     limit_rest: F64
     limit_batches: I64
@@ -232,6 +241,10 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
         pin_s = np.full(len(pins), float(axis[2]))
     origin = (1.0 - pin_s[:, None]) * joints[pin_axis[:, 0]] + pin_s[:, None] * joints[pin_axis[:, 1]]
     local = np.einsum("pji,pj->pi", rot[pin_joint], x[pins] - origin)  # R^T (x - anchor)
+    axis_local = None
+    if axis is not None:
+        u = joints[pin_axis[:, 1]] - joints[pin_axis[:, 0]]
+        axis_local = np.einsum("pji,pj->pi", rot[pin_joint], u / np.linalg.norm(u, axis=1, keepdims=True))
     order, ptr = _limit_batches(len(x), structural, pins)
     lim = structural[order]
     edges = np.concatenate([structural, shear])
@@ -247,6 +260,7 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
         kind=kind, rest=x.copy(), triangles=tris, structural=structural, structural_rest=rest(structural),
         shear=shear, shear_rest=rest(shear), bend=bend, bend_rest=rest(bend), mass=mass,
         pin_index=pins, pin_joint=pin_joint, pin_local=local, pin_axis=pin_axis, pin_axis_s=pin_s,
+        pin_axis_local=axis_local,
         limit_springs=lim, limit_rest=rest(lim), limit_batches=ptr, anchor=source.astype(np.int64), anchor_dist=dist,
         grid_shape=(rows, cols), wrap=wrap, pose=pose.copy(), seam=seam,
     )
@@ -327,9 +341,13 @@ def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: floa
                flare_deg: float = 22.0, density: float = DEFAULT_DENSITY) -> Garment:
     """An A-line skirt hanging from the natural waist to below the knees, inside the arms.
 
-    The waistband is a ring round the abdomen at the height of the spine joint, anchored on the
-    abdomen's axis (pelvis to chest joint) and turning with the spine: above the hip joints, so
-    no thigh reaches it even in a high kick, and well inside the elbows. Below it the skirt clears
+    The waistband is a ring round the abdomen at the natural waist, anchored on the abdomen's axis
+    (pelvis to chest joint) and turned with the spine frame swung onto that axis: at the spine
+    joint's height or just above it, as low as keeps it :data:`REST_CLEARANCE` from the pelvis and
+    thighs in 3D as well as :data:`COLLAR_CLEARANCE` from the trunk in its plane (the pelvis
+    capsule's hip-joint spheres reach up to the spine joint's height: the in-plane probe alone left
+    9 mm over the hips, which a swaying walk closes), so no thigh or hip reaches it in a high kick
+    or a walk, and well inside the elbows. Below it the skirt clears
     the hips and buttocks (a fitted yoke) and flares by ``flare_deg``; where an arm hangs beside it
     the flare is capped to stay inside the arm, so the hands swing outside the cloth instead of
     catching it against the hips.
@@ -349,18 +367,24 @@ def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: floa
     pose = standing_pose(body)
     joints, _ = fk_global(pose, body)
     pelvis, chest = joints[JOINT_INDEX["pelvis"]], joints[JOINT_INDEX["chest"]]
-    top_y = float(joints[JOINT_INDEX["spine"], 1])
-    s_waist = (top_y - pelvis[1]) / (chest[1] - pelvis[1])
-    centre = pelvis + s_waist * (chest - pelvis)
-    knee_y = 0.5 * (joints[JOINT_INDEX["l_knee"], 1] + joints[JOINT_INDEX["r_knee"], 1])
-    length = float(length) if length is not None else top_y - (knee_y - 0.04 * body.height)
     arms = np.array([CAPSULE_INDEX[f"{side}_{part}"] for side in "lr" for part in ("upper_arm", "forearm", "hand")])
     trunk_legs = np.setdiff1d(np.arange(len(body.capsule_radii)), arms)
     # waistband: a ring hugging the trunk at top_y, angle 0 = front (+Z), increasing towards +X
     probe = 72
     theta_p = np.linspace(0.0, 2 * np.pi, probe, endpoint=False)
     dirs_p = np.stack([np.sin(theta_p), np.zeros(probe), np.cos(theta_p)], axis=1)
-    waist = _extent(body, pose, np.tile(centre, (probe, 1)), dirs_p, capsules=trunk_legs) + COLLAR_CLEARANCE
+    a, b = capsule_endpoints(body, pose)
+    a, b, radii = a[trunk_legs], b[trunk_legs], body.capsule_radii[trunk_legs]
+    for raise_y in np.arange(0.0, WAIST_RAISE_MAX + 1e-9, 0.0025):  # the lowest ring that clears the hips
+        top_y = float(joints[JOINT_INDEX["spine"], 1]) + raise_y
+        s_waist = (top_y - pelvis[1]) / (chest[1] - pelvis[1])
+        centre = pelvis + s_waist * (chest - pelvis)
+        waist = _extent(body, pose, np.tile(centre, (probe, 1)), dirs_p, capsules=trunk_legs) + COLLAR_CLEARANCE
+        d, _, _ = round_cone_np(centre + waist[:, None] * dirs_p, a, b, radii[:, 0], radii[:, 1])
+        if d.min() >= REST_CLEARANCE:
+            break
+    knee_y = 0.5 * (joints[JOINT_INDEX["l_knee"], 1] + joints[JOINT_INDEX["r_knee"], 1])
+    length = float(length) if length is not None else top_y - (knee_y - 0.04 * body.height)
     tan_f = np.tan(np.radians(flare_deg))
     circumference = 2 * np.pi * (float(waist.mean()) + 0.5 * length * tan_f)
     rows, cols = _grid_counts(circumference, length, n_particles)

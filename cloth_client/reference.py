@@ -161,8 +161,11 @@ def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: i
 
 
 def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,
-                 n: int, dt_total: float, mass_damping: float) -> None:
+                 n: int, dt_total: float, mass_damping: float, anchor: I64 | None = None,
+                 reach: F64 | None = None) -> None:
     p, g = model.params, model.garment
+    anchor = g.anchor if anchor is None else anchor
+    reach = model.reach if reach is None else reach
     dt = dt_total / n
     free = inv_mass > 0
     grav, wind = np.asarray(p.gravity), np.asarray(p.wind)
@@ -181,7 +184,7 @@ def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, 
         a1, b1 = track.at(s1)
         contact = np.zeros((len(x), 6))
         for _ in range(p.limit_iterations):
-            long_range_attach_np(x, inv_mass, g.anchor, model.reach)
+            long_range_attach_np(x, inv_mass, anchor, reach)
             _line_pass(x, model, inv_mass, contact, p.limit_sweeps)
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
             v[free] = (x[free] - xp[free]) / dt

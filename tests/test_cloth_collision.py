@@ -11,10 +11,10 @@ from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
 from cloth_client.contact import broad_phase_np, collide_np, pinch_margin_np
-from cloth_client.garment import make_cape, make_sheet, make_skirt
+from cloth_client.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
-from protocol.skeleton import JOINT_INDEX, ROT_JOINTS, default_body, standing_pose
+from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, ROT_JOINTS, default_body, standing_pose
 
 A = np.array([[0.0, 0.0, 0.0]])
 B = np.array([[0.5, 0.0, 0.0]])
@@ -195,7 +195,7 @@ def test_pins_follow_their_joint() -> None:
     p1[3:6] = [0.0, np.pi / 2, 0.0]  # turn the whole body 90 degrees about +Y
     p1[0] += 0.3
     keys = pose_keys(body, np.stack([p0, p1]))
-    targets = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+    targets = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
     np.testing.assert_allclose(targets[0], g.rest[g.pin_index], atol=1e-12)
     rel0 = g.rest[g.pin_index] - p0[:3]
     np.testing.assert_allclose(targets[1] - p1[:3], rel0 @ rotvec_to_matrix(p1[3:6]).T, atol=1e-9)
@@ -235,6 +235,10 @@ def test_skirt_waistband_clears_kicks_and_bends_and_hangs_inside_the_arms() -> N
     a, b = capsule_endpoints(body, pose)
     d, _, _ = round_cone_np(g.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
     assert d.min() > 0.006  # the rest shape clears every capsule, arms included: hands swing outside
+    hips = [CAPSULE_INDEX[n] for n in ("pelvis", "l_thigh", "r_thigh")]
+    assert d[g.pin_index][:, hips].min() >= REST_CLEARANCE  # in 3D: the hip spheres reach the waist's height
+    spine_y = fk(pose, body)[JOINT_INDEX["spine"], 1]
+    assert spine_y <= g.rest[g.pin_index, 1].min() <= spine_y + 0.01  # raised no more than that takes
     tip = fk(pose, body)[JOINT_INDEX["l_hand_tip"]]
     side = (np.abs(g.rest[:, 0]) > 2 * np.abs(g.rest[:, 2])) & (g.rest[:, 1] > tip[1])
     assert side.sum() > 10 and np.all(np.abs(g.rest[side, 0]) < tip[0])  # inside the hanging arms
@@ -244,7 +248,7 @@ def test_skirt_waistband_clears_kicks_and_bends_and_hangs_inside_the_arms() -> N
     bow[spine:spine + 3] = [0.3, 0.0, 0.0]  # trunk bent forwards ~17 degrees (deeper: the front is released)
     for p1 in (kick, bow):
         keys = pose_keys(body, np.stack([pose, p1]))
-        t = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+        t = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
         np.testing.assert_allclose(t[0], g.rest[g.pin_index], atol=1e-12)
         assert not keys.covered(t, 0.006).any()  # no thigh through the waistband, no trunk over it
     knee = fk(kick, body)[JOINT_INDEX["l_knee"]]

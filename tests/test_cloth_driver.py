@@ -16,7 +16,7 @@ from cloth_client.avatar import (
     pose_keys,
     rigid_root_delta,
 )
-from cloth_client.cloth import build_model, structural_strain
+from cloth_client.cloth import build_model, initial_state, step, structural_strain, tethers_held
 from cloth_client.collision import penetration_np
 from cloth_client.driver import ClothDriver, DriverConfig
 from cloth_client.garment import DEFAULT_DENSITY, grid_topology, make_cape, make_garment, make_skirt
@@ -223,7 +223,7 @@ def test_waistband_lets_go_where_an_arm_comes_near_but_not_round_the_trunk() -> 
     g = d.garment
     pose = standing_pose(BODY)
     keys = pose_keys(BODY, np.stack([pose, pose]))
-    pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+    pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
     assert not keys.covered(pins, reach).any()  # standing: arms hang clear of the waistband
     # move one pin to 3 cm outside the left forearm's surface: within reach of an arm, not of the margin
     a, b = keys.track.a[0, CAPSULE_INDEX["l_forearm"]], keys.track.b[0, CAPSULE_INDEX["l_forearm"]]
@@ -233,6 +233,68 @@ def test_waistband_lets_go_where_an_arm_comes_near_but_not_round_the_trunk() -> 
     near[:, 0] = mid + np.array([r + 0.03, 0.0, 0.0])
     assert keys.covered(near, reach)[0] and not keys.covered(near, margin)[0]
     assert d._widen(keys.covered(near, reach)).sum() == 3  # the pin and its two neighbours go
+
+
+def test_released_pins_hand_their_cloth_to_the_held_pins() -> None:
+    """While part of the waistband is let go, every particle is tethered to its nearest *held* pin
+    (never tighter than its own attachment), so the released stretch does not sag and stretch under
+    the skirt's weight."""
+    g = make_skirt(BODY, 500)
+    model = build_model(g)
+    none = np.zeros(len(g.pin_index), dtype=bool)
+    anchor, reach = tethers_held(model, none)
+    np.testing.assert_array_equal(anchor, g.anchor)
+    np.testing.assert_allclose(reach, model.reach)
+    released = none.copy()
+    released[: len(released) // 3] = True  # a third of the waistband
+    anchor, reach = tethers_held(model, released)
+    assert set(anchor.tolist()) <= set(g.pin_index[~released].tolist())
+    assert np.all(reach >= model.reach - 1e-12) and np.all(reach[g.pin_index[released]] > 0.0)
+    assert np.all(reach[g.pin_index[~released]] == 0.0)
+    pose = standing_pose(BODY)
+    keys = pose_keys(BODY, np.stack([pose, pose]))
+    pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
+    worst = {}
+    for name, tethers in (("own", None), ("held", (anchor, reach))):
+        state = initial_state(model)
+        worst[name] = 0.0
+        for _ in range(60):  # 1 s
+            state = step(state, model, keys.track, pins, 1 / 60, released=released, tethers=tethers)
+            worst[name] = max(worst[name], float(structural_strain(model, state.x).max()))
+    assert worst["held"] < 0.09 and worst["own"] > 0.10
+
+
+def test_waistband_stays_square_to_the_abdomen_when_the_back_bends() -> None:
+    """The waistband's frame is the spine joint's, swung to keep the ring square to the pelvis-chest
+    line: it moves rigidly and stays as far from the abdomen's axis as at rest, also in a deep bow,
+    a side bend and a twist."""
+    g = make_skirt(BODY, 500)
+    pose = standing_pose(BODY)
+    k = 3 + 3 * ROT_JOINTS.index("spine")
+    bends = []
+    for rv in ([0.6, 0.0, 0.0], [0.0, 0.0, 0.4], [0.3, 0.5, -0.2]):
+        p = pose.copy()
+        p[k:k + 3] = rv
+        bends.append(p)
+    keys = pose_keys(BODY, np.stack([pose, *bends]))
+    t = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
+    plain = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s)
+    np.testing.assert_allclose(t[0], g.rest[g.pin_index], atol=1e-12)
+    pelvis, chest = JOINT_INDEX["pelvis"], JOINT_INDEX["chest"]
+
+    def axial(j: int) -> np.ndarray:  # distance of each pin from the pelvis-chest line, and along it from the anchor
+        a, b = keys.joints[j, pelvis], keys.joints[j, chest]
+        u = (b - a) / np.linalg.norm(b - a)
+        s = g.pin_axis_s[:, None]
+        d = t[j] - ((1.0 - s) * a + s * b)
+        along = d @ u
+        return np.concatenate([np.linalg.norm(d - along[:, None] * u, axis=1), along])
+
+    for j in range(1, len(bends) + 1):
+        d0 = np.linalg.norm(t[0][:, None] - t[0][None], axis=-1)
+        np.testing.assert_allclose(np.linalg.norm(t[j][:, None] - t[j][None], axis=-1), d0, atol=1e-9)  # rigid
+        np.testing.assert_allclose(axial(j), axial(0), atol=1e-9)  # square to the axis, same radii
+        assert np.abs(t[j] - plain[j]).max() > 0.005  # the spine frame alone would tilt it
 
 
 @pytest.mark.parametrize("rate", [15.0, 120.0])

@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from cloth_client import _kernels as K
-from cloth_client.cloth import ClothParams, build_model, energy, initial_state, step, structural_strain
+from cloth_client.cloth import (
+    ClothParams,
+    build_model,
+    energy,
+    initial_state,
+    step,
+    structural_strain,
+    tethers_held,
+)
 from cloth_client.collision import CapsuleTrack
 from cloth_client.garment import make_cape, make_sheet, make_skirt
 from cloth_client.reference import (
@@ -208,6 +216,14 @@ def test_whole_step_matches_numpy_reference() -> None:
     b = step(state, model, EMPTY, pins, 1 / 60, n_substeps=4, backend="numpy")
     np.testing.assert_allclose(a.x, b.x, atol=1e-10)
     np.testing.assert_allclose(a.v, b.v, atol=1e-7)
+    # with pins let go and the attachments moved to the held ones (every particle is tethered)
+    released = np.zeros(len(g.pin_index), dtype=bool)
+    released[:3] = True
+    tight = build_model(g, ClothParams(floor=None, max_stretch=0.5, max_compression=0.5))
+    tethers = tethers_held(tight, released)
+    a = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4, backend="numba")
+    b = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4, backend="numpy")
+    np.testing.assert_allclose(a.x, b.x, atol=1e-10)
     # without constraint projections the substeps are smooth, so several stay in step too
     loose = build_model(g, ClothParams(floor=None, limit_iterations=0, final_sweeps=0))
     a = step(state, loose, EMPTY, pins, 1 / 60, n_substeps=6, backend="numba")

@@ -93,6 +93,7 @@ class SideStepParams:
     settle_s: float = 0.2
     settle_speed: float = 0.2
     refractory_s: float = 0.4
+    trail_min: float = 0.12  # the trailing foot follows at least this far (the body relocates: not a lunge)
     capacity: int = 512
 
 
@@ -184,9 +185,10 @@ class SideStepDetector:
         pel = lat[:, 0]
         left = pel > 0  # stepping left: the left foot leads
         lead = np.where(left, lat[:, 1], -lat[:, 2])
+        trail = np.where(left, lat[:, 2], -lat[:, 1])
         lead_fwd = np.where(left, -d[:, 2] * lz + d[:, 3] * lx, -d[:, 4] * lz + d[:, 5] * lx) / f.height
         elapsed = f.t - self._buf[: self._n - 1, 0]
         ok = ((np.abs(pel) >= p.pelvis_min) & (np.abs(fwd) <= p.fwd_ratio_max * np.abs(pel))
               & (lead >= p.foot_min) & (np.abs(lead_fwd) <= p.fwd_ratio_max * lead)
-              & facing_ok & (np.abs(pel) >= p.min_speed * elapsed))
+              & facing_ok & (np.abs(pel) >= p.min_speed * elapsed) & (trail >= p.trail_min))
         return ok, pel, fwd, lead

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from game_client.body_detectors import SideStepDetector, SideStepParams
 from game_client.detectors import Candidate, TransformDetector, TransformParams
 from game_client.evaluation import turn_in_place
 from game_client.features import FrameFeatures, ScreenFacing
@@ -122,3 +123,27 @@ def test_transform_accepts_the_hands_where_the_tracker_puts_them_on_the_chest() 
     assert _run(TransformDetector(no_belly), _transform_frames(belly)) == []
     for hanging in ((0.16, -0.31, 0.03), (0.12, -0.30, 0.03)):
         assert _run(TransformDetector(TransformParams()), _transform_frames(hanging)) == []
+
+
+def _step_frames(trail_m: float) -> list[FrameFeatures]:
+    """Facing +Z, pelvis 0.35 m and left foot 0.45 m to the player's left (+X) in 0.6 s, the right
+    foot ``trail_m``; then 0.6 s at rest."""
+    out = []
+    for t in np.arange(0.0, 1.8, 1.0 / HZ):
+        a = float(np.clip((t - 0.4) / 0.6, 0.0, 1.0))
+        out.append(FrameFeatures(t=float(t), ok=True, height=1.7, yaw=0.0, left_xz=(1.0, 0.0),
+                                 pelvis_xz=(0.35 * a, 0.0), ankle_l_xz=(0.1 + 0.45 * a, 0.0),
+                                 ankle_r_xz=(-0.1 + trail_m * a, 0.0), legs_ok=True))
+    return out
+
+
+def test_side_step_needs_the_trailing_foot_to_follow() -> None:
+    """A dance lunge (pelvis and leading foot sideways, the other foot planted) is not a step; on
+    rotated real dance takes it was the one false side-step of the screen frame."""
+    def run(trail_m: float, p: SideStepParams) -> list[Candidate]:
+        det = SideStepDetector(p, ScreenFacing())
+        return [c for f in _step_frames(trail_m) if (c := det.update(f)) is not None]
+    (c,) = run(0.25, SideStepParams())
+    assert c.direction == "left"
+    assert run(0.0, SideStepParams()) == []
+    assert len(run(0.0, SideStepParams(trail_min=-1.0))) == 1

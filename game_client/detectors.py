@@ -20,10 +20,9 @@ transform
     Both wrists out to the sides near shoulder height (``out >= 0.28``, ``|up| <= 0.12``) for
     0.12 s, then within 2 s both wrists resting on the chest (``out <= 0.13``,
     ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
-    hands reach the chest; or ``out <= 0.10`` down to ``up = -0.33`` (in front of the belly). (A
-    single camera sees hands in front of the torso only inside its silhouette: the tracker reports
-    hands on the chest lower and wider than they are, or at the belly; hands hanging at the sides
-    at >= 0.11 H out and below -0.26.)
+    hands reach the chest. (A single camera sees hands in front of the torso only inside its
+    silhouette: the tracker reports hands on the chest lower and wider than they are, hands
+    hanging at the sides at >= 0.11 H out and below -0.26.)
 crouch (:mod:`game_client.body_detectors`)
     From standing (pelvis height over the lower ankle >= 0.88 leg lengths) down to <= 0.65 leg
     lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing).
@@ -367,8 +366,6 @@ class TransformParams:
     chest_up_max: float = 0.02
     chest_fwd_min: float = 0.0
     chest_fwd_max: float = 0.22
-    belly_out_max: float = 0.10  # or lower, down to belly_up_min, if this close to the midline
-    belly_up_min: float = -0.33
     chest_hold_s: float = 0.06
     chest_still: float = 0.08  # each wrist coordinate moves at most this far during the chest hold
     max_gap_s: float = 2.0
@@ -397,15 +394,9 @@ class TransformDetector:
         return bool(w[0] >= self.p.out_min - slack and abs(w[1]) <= self.p.out_up_abs + slack)
 
     def _on_chest(self, w: Vec3, slack: float) -> bool:
-        """The hand rests on the chest: near the midline, below the shoulders, in front of the body;
-        or right in front of the torso's midline down to the belly, where a single camera's tracker
-        also reports hands that rest on the chest (inside the silhouette, the hands' height is not
-        seen; hands hanging at the sides stay wider)."""
         p = self.p
-        if not (p.chest_fwd_min - slack <= w[2] <= p.chest_fwd_max + slack and w[1] <= p.chest_up_max + slack):
-            return False
-        return bool((w[0] <= p.chest_out_max + slack and w[1] >= p.chest_up_min - slack)
-                    or (w[0] <= p.belly_out_max + slack and w[1] >= p.belly_up_min - slack))
+        return bool(w[0] <= p.chest_out_max + slack and p.chest_up_min - slack <= w[1] <= p.chest_up_max + slack
+                    and p.chest_fwd_min - slack <= w[2] <= p.chest_fwd_max + slack)
 
     def update(self, f: FrameFeatures) -> Candidate | None:
         p = self.p

@@ -107,9 +107,9 @@ class ScreenFacing:
         35 degrees).
     mean_deg : float
         The mean absolute difference between the facing and ``yaw_deg`` over the motion must not
-        exceed this (tracked steps and fire rings: up to 11 degrees; the first real take to give a
-        false side-step, a sideways walk turned 33-38 degrees away from the camera or a dance step:
-        18 degrees).
+        exceed this (15, the side-step's: tracked steps need up to 12 degrees, the first real take
+        to give a false side-step 18; sideways walks turned 33-38 degrees away from the camera are
+        rejected. The in-place rule uses 30: tracked fire rings need up to 19).
     """
 
     yaw_deg: float = 0.0

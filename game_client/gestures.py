@@ -231,8 +231,8 @@ class GestureRecognizer:
             Gesture.STRIKE: StrikeDetector(cfg.strike),
             Gesture.FIRE_RING: FireRingDetector(cfg.fire_ring),
         }
-        self.counters = dict.fromkeys(("frames", "gaps", "restarts", "glitches", "unusable", "duplicates",
-                                                "low_confidence"), 0)
+        self.counters = dict.fromkeys(
+            ("frames", "gaps", "restarts", "glitches", "unusable", "duplicates", "low_confidence"), 0)
         self._t_last: float | None = None
         self._pelvis_last: tuple[float, float] | None = None
         self._last_event: dict[Gesture, float] = {}
@@ -275,9 +275,6 @@ class GestureRecognizer:
         cfg = self.config
         if not math.isfinite(t):
             raise ValueError(f"frame time must be finite, got {t}")
-        if confidence < cfg.min_confidence and (self._t_last is None or t > self._t_last):
-            self.counters["low_confidence"] += 1
-            return []
         if self._t_last is not None:
             if t < self._t_last:
                 self.counters["restarts"] += 1
@@ -285,10 +282,13 @@ class GestureRecognizer:
             elif t == self._t_last:
                 self.counters["duplicates"] += 1
                 return []
-            elif t - self._t_last > cfg.max_gap_s:
-                self.counters["gaps"] += 1
-                self._reset_detectors()
-                self.features.reset()
+        if confidence < cfg.min_confidence:  # not read; the time since the last frame read keeps growing
+            self.counters["low_confidence"] += 1
+            return []
+        if self._t_last is not None and t - self._t_last > cfg.max_gap_s:
+            self.counters["gaps"] += 1
+            self._reset_detectors()
+            self.features.reset()
         self.counters["frames"] += 1
         f = self.features.update(t, joints, visibility, confidence)
         dt = 0.0 if self._t_last is None else t - self._t_last
@@ -312,7 +312,7 @@ class GestureRecognizer:
         if gesture == Gesture.SIDE_STEP:
             return True
         turn, travel, faced = self._history.motion(cand.start_s - 0.2, f.t, cfg.still_depth_weight,
-                                                           cfg.still_screen)
+                                                   cfg.still_screen)
         limit = cfg.crouch_max_travel if gesture == Gesture.CROUCH else cfg.still_max_travel
         return (turn <= math.radians(cfg.still_max_turn_deg) or faced) and travel <= limit * f.height
 

@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python bench/bench_game_tracked.py [--db PATH] [--scripts a,b,...] [--variants N]
-                                                 [--lead-in S] [--seed S] [--json]
+                                                 [--lead-in S] [--seed S] [--cache DIR] [--json]
 
 For every bundled single-gesture script (positives and near-misses; ``--rounds`` adds the
 whole-round scripts) and a few variants of it (speed x seed; the seed picks the synthetic person,
@@ -19,6 +19,11 @@ so it varies body size and shape, outfit, room and lighting), the motion is
 4. fed to a fresh :class:`game_client.gestures.GestureRecognizer` with the tracker's joints,
    visibility and confidence (frames without a pose are skipped, as the game client would).
 
+With ``--cache DIR`` the tracked (and true) joint sequences are stored in ``DIR`` (one ``.npz`` per
+sequence, keyed by the script, speed, seed, lead-in, tracker settings, database and a hash of the
+tracker's and the scripts' source) and reused on later runs, so the recogniser can be iterated on
+without re-tracking; without it every sequence is rendered and tracked afresh.
+
 The same recogniser also runs on the scene's ground-truth joints (``truth``: the rendered person's
 true pose), which separates tracker errors from what rendering on another body changes. Events are
 matched to the scripts' labels as in ``bench/bench_game.py``; precision and recall per gesture.
@@ -29,20 +34,24 @@ Not a test: the tracker is slow (tens of ms per frame on one core) and still bei
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import platform
 import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from game_client.evaluation import Score, match_events
-from game_client.gestures import GestureEvent, GestureRecognizer
+from game_client.gestures import GestureEvent, GestureRecognizer, RecognizerConfig
 from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
 from protocol.motion import Motion
+from protocol.skeleton import N_JOINTS, N_PARTS
 from tracker_service.body_models import BODY_MODELS
 from tracker_service.pipeline import TrackerConfig, new_state, process_frame
 from tracker_service.scene import SceneConfig, SyntheticScene
@@ -63,47 +72,110 @@ def with_lead_in(m: Motion, seconds: float) -> Motion:
     return Motion(poses=poses, fps=m.fps, name=m.name, body=m.body, source=m.source)
 
 
-def run_sequence(m: Motion, loaded: LoadedDatabase, cfg: TrackerConfig, seed: int) -> dict[str, Any]:
-    """Render, track and recognise one motion.
+def track_sequence(m: Motion, loaded: LoadedDatabase, cfg: TrackerConfig, seed: int) -> dict[str, Any]:
+    """Render and track one motion; keep the tracked and the true joints of every frame with a person.
 
     Returns
     -------
     dict
-        ``tracked`` and ``truth`` event lists (:class:`GestureEvent`), the offset (s) of motion
-        frame 0 in stream time, tracked-frame fraction, root-relative MPJPE (cm), subject height,
-        chosen body model and seconds taken.
+        Arrays ``t`` (F,), ``joints`` (F, 24, 3) (NaN where the tracker gave no pose), ``has_pose``
+        (F,), ``visibility`` (F, 15), ``confidence`` (F,), ``truth_joints`` (F, 24, 3),
+        ``truth_visibility`` (F, 15); and ``meta``: the offset (s) of motion frame 0 in stream time,
+        frames, tracked-frame fraction, root-relative MPJPE (cm), subject height, chosen body model
+        and seconds taken.
     """
     scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=FPS, empty_prefix=EMPTY_PREFIX)
     t0 = time.perf_counter()
     scene = SyntheticScene(m, seed=seed, config=scfg)
+    ts: list[float] = []
+    joints: list[NDArray[np.float64]] = []
+    vis: list[NDArray[np.float64]] = []
+    conf: list[float] = []
+    tj: list[NDArray[np.float64]] = []
+    tv: list[NDArray[np.float64]] = []
     try:
         state = new_state(loaded.body)
         tcfg = replace(cfg, background_frames=EMPTY_PREFIX)
-        rec_tracked, rec_truth = GestureRecognizer(), GestureRecognizer()
-        tracked: list[GestureEvent] = []
-        truth: list[GestureEvent] = []
-        errs: list[float] = []
-        present = 0
         for i in range(scene.n_frames):
             fr = scene.frame(i)
             state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, tcfg, fr.timestamp)
             if not fr.truth.present:
                 continue
-            present += 1
-            truth += rec_truth.update(fr.timestamp, fr.truth.joints, fr.truth.visibility)
+            ts.append(fr.timestamp)
+            tj.append(np.asarray(fr.truth.joints, dtype=np.float64))
+            tv.append(np.asarray(fr.truth.visibility, dtype=np.float64))
             if res.joints is None:
-                continue
-            tracked += rec_tracked.update(fr.timestamp, res.joints, res.visibility, res.confidence)
-            je, jt = res.joints, fr.truth.joints
-            errs.append(float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean()))
+                joints.append(np.full((N_JOINTS, 3), np.nan))
+                vis.append(np.zeros(N_PARTS))
+                conf.append(0.0)
+            else:
+                joints.append(np.asarray(res.joints, dtype=np.float64))
+                vis.append(np.asarray(res.visibility, dtype=np.float64))
+                conf.append(float(res.confidence))
         height = float(scene.subject.spec.height)
     finally:
         scene.close()
-    return {"tracked": tracked, "truth": truth, "offset_s": EMPTY_PREFIX / FPS, "frames": present,
-            "tracked_fraction": round(len(errs) / max(present, 1), 3),
-            "mpjpe_cm": round(100 * float(np.mean(errs)), 1) if errs else None,
+    j = np.asarray(joints).reshape(-1, N_JOINTS, 3)
+    truth = np.asarray(tj).reshape(-1, N_JOINTS, 3)
+    has = np.isfinite(j).all(axis=(1, 2))
+    errs = np.linalg.norm((j - j[:, :1]) - (truth - truth[:, :1]), axis=2).mean(axis=1)[has]
+    meta = {"offset_s": EMPTY_PREFIX / FPS, "frames": len(ts),
+            "tracked_fraction": round(int(has.sum()) / max(len(ts), 1), 3),
+            "mpjpe_cm": round(100 * float(errs.mean()), 1) if len(errs) else None,
             "subject_height_m": round(height, 3), "body": state.body.name,
             "seconds": round(time.perf_counter() - t0, 1)}
+    return {"t": np.asarray(ts, dtype=np.float64), "joints": j, "has_pose": has,
+            "visibility": np.asarray(vis).reshape(-1, N_PARTS), "confidence": np.asarray(conf),
+            "truth_joints": truth, "truth_visibility": np.asarray(tv).reshape(-1, N_PARTS), "meta": meta}
+
+
+def recognise_sequence(seq: dict[str, Any], config: RecognizerConfig | None = None
+                       ) -> tuple[list[GestureEvent], list[GestureEvent]]:
+    """Run fresh recognisers over a tracked sequence: on the tracked joints (frames without a pose
+    skipped, as the game client would) and on the true joints. Returns ``(tracked, truth)`` events."""
+    rec_tracked, rec_truth = GestureRecognizer(config), GestureRecognizer(config)
+    tracked: list[GestureEvent] = []
+    truth: list[GestureEvent] = []
+    for k in range(len(seq["t"])):
+        t = float(seq["t"][k])
+        truth += rec_truth.update(t, seq["truth_joints"][k], seq["truth_visibility"][k])
+        if seq["has_pose"][k]:
+            tracked += rec_tracked.update(t, seq["joints"][k], seq["visibility"][k], float(seq["confidence"][k]))
+    return tracked, truth
+
+
+def _source_hash() -> str:
+    """Hash of what a tracked sequence depends on besides its arguments: the tracker's and the
+    scripts' source."""
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for p in sorted([*(root / "tracker_service").rglob("*.py"), *(root / "game_client" / "scripts").glob("*.toml"),
+                     root / "game_client" / "variants.py", root / "protocol" / "motion.py"]):
+        h.update(p.relative_to(root).as_posix().encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def cached_track(cache: Path | None, key: dict[str, Any], m: Motion, loaded: LoadedDatabase, cfg: TrackerConfig,
+                 seed: int) -> tuple[dict[str, Any], bool]:
+    """:func:`track_sequence`, through the cache folder ``cache`` if given. Returns the sequence and
+    whether it came from the cache."""
+    if cache is None:
+        return track_sequence(m, loaded, cfg, seed), False
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+    path = cache / f"{key['script']}_x{key['speed']:g}_s{seed}_{digest}.npz"
+    if path.exists():
+        with np.load(path) as z:
+            seq: dict[str, Any] = {k: z[k] for k in z.files if k != "meta"}
+            seq["meta"] = json.loads(str(z["meta"]))
+        return seq, True
+    seq = track_sequence(m, loaded, cfg, seed)
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **{k: v for k, v in seq.items() if k != "meta"},
+                        meta=np.asarray(json.dumps({**seq["meta"], "key": key})))
+    tmp.replace(path)
+    return seq, False
 
 
 def _shift(labels: tuple[Label, ...], dt: float) -> list[Label]:
@@ -133,6 +205,8 @@ def main() -> int:
     ap.add_argument("--max-heading", type=float, default=35.0, metavar="DEG",
                     help="the tracker's game mode: the player faces the screen within DEG degrees (default 35, "
                          "as `mocap-tracker run --max-heading 35`; 0: any heading)")
+    ap.add_argument("--cache", metavar="DIR", help="reuse tracked sequences stored in DIR and store new ones there "
+                                                   "(e.g. out/game_tracked_cache; default: track everything afresh)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args()
 
@@ -147,12 +221,20 @@ def main() -> int:
     if args.rounds:
         jobs += [(n, Variant(fps=FPS), args.seed) for n in labels if n.startswith("round_")]
 
+    cache = Path(args.cache) if args.cache else None
+    base_key = {"lead_in": args.lead_in, "max_heading": args.max_heading, "fps": FPS, "db": str(loaded.path),
+                "templates": int(loaded.db.n_leaves), "source": _source_hash() if cache else None}
     score_tracked, score_truth = Score(), Score()
     rows = []
+    reused = 0
     t_start = time.perf_counter()
     for k, (name, v, seed) in enumerate(jobs):
         m = with_lead_in(variant_motion(name, v), args.lead_in)
-        out = run_sequence(m, loaded, cfg, seed)
+        seq, hit = cached_track(cache, {**base_key, "script": name, "speed": v.speed, "seed": seed}, m, loaded, cfg,
+                                seed)
+        reused += hit
+        tracked, truth = recognise_sequence(seq)
+        out = {**seq["meta"], "tracked": tracked, "truth": truth}
         lbs = _shift(variant_labels(labels[name], v), out["offset_s"] + args.lead_in)
         mt, mg = match_events(out["tracked"], lbs), match_events(out["truth"], lbs)
         score_tracked.add(mt)
@@ -165,14 +247,16 @@ def main() -> int:
                                            "seconds")}}
         rows.append(row)
         print(f"[{k + 1}/{len(jobs)}] {name} x{v.speed:g} seed {seed}: tracked {row['tracked_events']} "
-              f"truth {row['truth_events']} (mpjpe {row['mpjpe_cm']} cm, {row['seconds']} s)", file=sys.stderr)
+              f"truth {row['truth_events']} (mpjpe {row['mpjpe_cm']} cm, {row['seconds']} s"
+              f"{', cached' if hit else ''})", file=sys.stderr)
     res = {"machine": f"{platform.node()} {platform.processor() or platform.machine()}",
            "database": {"path": str(loaded.path), "templates": int(loaded.db.n_leaves),
                         "scripts": loaded.meta.get("scripts", []), "body": loaded.body.name},
            "tracker": {"distance": cfg.distance, "occlusion": cfg.occlusion, "body": "auto",
                        "max_heading_deg": args.max_heading or None, "skin": cfg.skin is not None,
                        "smoothing": cfg.smoothing is not None},
-           "lead_in_s": args.lead_in, "fps": FPS, "sequences": len(rows),
+           "lead_in_s": args.lead_in, "fps": FPS, "sequences": len(rows), "seeds": sorted({r["seed"] for r in rows}),
+           "cache": str(cache) if cache else None, "reused_from_cache": reused,
            "tracked": _fmt(score_tracked), "truth": _fmt(score_truth),
            "tracked_latency_p50_ms": round(score_tracked.latency_percentile(50), 1),
            "tracked_latency_p95_ms": round(score_tracked.latency_percentile(95), 1),

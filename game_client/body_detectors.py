@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .detectors import Candidate, clip01
-from .features import FrameFeatures
+from .features import FrameFeatures, ScreenFacing
 
 __all__ = ["CrouchDetector", "CrouchParams", "SideStepDetector", "SideStepParams"]
 
@@ -93,14 +93,22 @@ class SideStepParams:
     settle_s: float = 0.2
     settle_speed: float = 0.2
     refractory_s: float = 0.4
+    trail_min: float = 0.12  # the trailing foot follows at least this far (the body relocates: not a lunge)
     capacity: int = 512
 
 
 @dataclass
 class SideStepDetector:
-    """A step to the player's left or right (pelvis and leading foot move sideways)."""
+    """A step to the player's left or right (pelvis and leading foot move sideways).
+
+    With ``screen``, a step also counts when the displacement conditions hold along the screen's
+    axes instead of the body's and the player faced the screen during it
+    (:class:`~game_client.features.ScreenFacing`; the turn limit is then not applied): the tracked
+    facing swings by up to 35 degrees while the legs are apart, the tracked ground positions do not.
+    """
 
     p: SideStepParams
+    screen: ScreenFacing | None = None
     _buf: NDArray[np.float64] = field(init=False)
     _n: int = field(init=False, default=0)
 
@@ -141,20 +149,14 @@ class SideStepDetector:
         reach = (b[:, 1] - b[-1, 1]) ** 2 + (b[:, 2] - b[-1, 2]) ** 2
         if float(reach.max()) < (p.pelvis_min * f.height) ** 2:
             return None  # the pelvis has not been far from here within the window
-        lx, lz = f.left_xz
         d = b[-1, 1:7] - b[:-1, 1:7]  # displacement from each past sample to now
-        lat = (d[:, [0, 2, 4]] * lx + d[:, [1, 3, 5]] * lz) / f.height  # pelvis, l ankle, r ankle
-        fwd = (-d[:, 0] * lz + d[:, 1] * lx) / f.height
         yaw_hist = b[::-1, 7]  # facing range from each past sample to now (the body may turn and back)
         turn = (np.maximum.accumulate(yaw_hist) - np.minimum.accumulate(yaw_hist))[::-1][:-1]
-        pel = lat[:, 0]
-        left = pel > 0  # stepping left: the left foot leads
-        lead = np.where(left, lat[:, 1], -lat[:, 2])
-        lead_fwd = np.where(left, -d[:, 2] * lz + d[:, 3] * lx, -d[:, 4] * lz + d[:, 5] * lx) / f.height
-        ok = ((np.abs(pel) >= p.pelvis_min) & (np.abs(fwd) <= p.fwd_ratio_max * np.abs(pel))
-              & (lead >= p.foot_min) & (np.abs(lead_fwd) <= p.fwd_ratio_max * lead)
-              & (turn <= math.radians(p.max_turn_deg))
-              & (np.abs(pel) >= p.min_speed * (f.t - b[:-1, 0])))
+        ok, pel, fwd, lead = self._conditions(f, d, f.left_xz, turn <= math.radians(p.max_turn_deg))
+        if self.screen is not None and not ok.any():
+            psi = math.radians(self.screen.yaw_deg)
+            facing = self.screen.faced(b[:, 7])[:-1]
+            ok, pel, fwd, lead = self._conditions(f, d, (math.cos(psi), -math.sin(psi)), facing)
         if not ok.any():
             return None
         k = int(np.flatnonzero(ok)[np.argmax(np.abs(pel[ok]))])
@@ -169,3 +171,24 @@ class SideStepDetector:
         start = float(b[int(before.max()), 0])
         self._n = 0
         return Candidate(start, f.t, score, direction)
+
+    def _conditions(self, f: FrameFeatures, d: NDArray[np.float64], left_xz: tuple[float, float],
+                    facing_ok: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.float64],
+                                                           NDArray[np.float64], NDArray[np.float64]]:
+        """The step conditions for each past sample, measured along the horizontal axes given by
+        ``left_xz`` (the left axis; forward = left x up). Returns ``(ok, pelvis sideways, pelvis
+        forwards, leading foot sideways)`` per sample, in body heights."""
+        p = self.p
+        lx, lz = left_xz
+        lat = (d[:, [0, 2, 4]] * lx + d[:, [1, 3, 5]] * lz) / f.height  # pelvis, l ankle, r ankle
+        fwd = (-d[:, 0] * lz + d[:, 1] * lx) / f.height
+        pel = lat[:, 0]
+        left = pel > 0  # stepping left: the left foot leads
+        lead = np.where(left, lat[:, 1], -lat[:, 2])
+        trail = np.where(left, lat[:, 2], -lat[:, 1])
+        lead_fwd = np.where(left, -d[:, 2] * lz + d[:, 3] * lx, -d[:, 4] * lz + d[:, 5] * lx) / f.height
+        elapsed = f.t - self._buf[: self._n - 1, 0]
+        ok = ((np.abs(pel) >= p.pelvis_min) & (np.abs(fwd) <= p.fwd_ratio_max * np.abs(pel))
+              & (lead >= p.foot_min) & (np.abs(lead_fwd) <= p.fwd_ratio_max * lead)
+              & facing_ok & (np.abs(pel) >= p.min_speed * elapsed) & (trail >= p.trail_min))
+        return ok, pel, fwd, lead

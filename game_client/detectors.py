@@ -18,9 +18,11 @@ crouches made while the body turned or travelled (a dance, a walk).
 
 transform
     Both wrists out to the sides near shoulder height (``out >= 0.28``, ``|up| <= 0.12``) for
-    0.12 s, then within 2 s both wrists resting on the chest (``out <= 0.10``,
-    ``-0.24 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
-    hands reach the chest.
+    0.12 s, then within 2 s both wrists resting on the chest (``out <= 0.13``,
+    ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
+    hands reach the chest. (A single camera sees hands in front of the torso only inside its
+    silhouette: the tracker reports hands on the chest lower and wider than they are, hands
+    hanging at the sides at >= 0.11 H out and below -0.26.)
 crouch (:mod:`game_client.body_detectors`)
     From standing (pelvis height over the lower ankle >= 0.88 leg lengths) down to <= 0.65 leg
     lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing).
@@ -29,8 +31,9 @@ side_step (:mod:`game_client.body_detectors`)
     Within 2 s the pelvis moves >= 0.17 H along the body's left/right axis at >= 0.12 H/s on
     average, with at most 0.4 of that forwards/backwards; the leading foot moves >= 0.17 H the
     same way (also mostly sideways); the facing stays within 20 deg; and the pelvis has come to
-    rest (< 0.2 H/s over 0.2 s). Ends on that frame; ``direction`` is the player's ``left`` or
-    ``right``.
+    rest (< 0.2 H/s over 0.2 s). Or the same along the screen's axes, without the turn limit, if
+    the player faced the screen (:class:`~game_client.features.ScreenFacing`). Ends on that
+    frame; ``direction`` is the player's ``left`` or ``right``.
 strike
     The right wrist rises above the head line (``up >= 0.10``) while the left wrist stays below
     ``up = -0.10`` (or holds the same grip: wrists within 0.15 H, as in a two-handed chop) and is
@@ -358,8 +361,8 @@ class TransformParams:
     out_min: float = 0.28
     out_up_abs: float = 0.12
     out_hold_s: float = 0.12
-    chest_out_max: float = 0.10
-    chest_up_min: float = -0.24
+    chest_out_max: float = 0.13
+    chest_up_min: float = -0.26
     chest_up_max: float = 0.02
     chest_fwd_min: float = 0.0
     chest_fwd_max: float = 0.22

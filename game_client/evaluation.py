@@ -25,7 +25,7 @@ from .gestures import GestureEvent, RecognizerConfig, recognize
 from .variants import Label, Variant, load_labels, variant_labels, variant_motion
 
 __all__ = ["Case", "Match", "Score", "allowed_gestures", "degrade", "expected_gestures",
-           "match_events", "occlude", "random_cases", "recording", "run_case"]
+           "match_events", "occlude", "random_cases", "recording", "run_case", "turn_in_place"]
 
 @dataclass(frozen=True)
 class Match:
@@ -135,6 +135,31 @@ def degrade(times: NDArray[np.floating], joints: NDArray[np.floating], rng: np.r
     keep = rng.random(len(t)) >= drop_p
     keep[[0, -1]] = True
     return t[keep], j[keep]
+
+
+def turn_in_place(joints: NDArray[np.floating], yaw_deg: NDArray[np.floating] | float) -> NDArray[np.float64]:
+    """Each frame's body turned about the vertical through its pelvis by ``yaw_deg`` (per frame or
+    one value; positive turns +Z towards +X): the pelvis path is kept, the facing changes, as when a
+    single-camera tracker's heading wanders while the player faces the camera.
+
+    Parameters
+    ----------
+    joints : (N, J, 3) float
+    yaw_deg : (N,) float or float
+
+    Returns
+    -------
+    (N, J, 3) float64
+    """
+    j = np.asarray(joints, dtype=np.float64)
+    a = np.radians(np.broadcast_to(np.asarray(yaw_deg, dtype=np.float64), (len(j),)))[:, None]
+    c, s = np.cos(a), np.sin(a)
+    p = j[:, :1, :]
+    x, z = j[:, :, 0] - p[:, :, 0], j[:, :, 2] - p[:, :, 2]
+    out = j.copy()
+    out[:, :, 0] = p[:, :, 0] + c * x + s * z
+    out[:, :, 2] = p[:, :, 2] - s * x + c * z
+    return out
 
 
 def occlude(times: NDArray[np.floating], parts: Iterable[str], t0: float, t1: float,

@@ -41,7 +41,8 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import JOINT_INDEX, N_JOINTS, N_PARTS, PARTS
 
-__all__ = ["ARM_SHARE", "LEG_SHARE", "TORSO_SHARE", "FeatureConfig", "FeatureExtractor", "FrameFeatures"]
+__all__ = ["ARM_SHARE", "LEG_SHARE", "TORSO_SHARE", "FeatureConfig", "FeatureExtractor", "FrameFeatures",
+           "ScreenFacing"]
 
 _J = JOINT_INDEX
 _P = {name: i for i, name in enumerate(PARTS)}
@@ -79,6 +80,50 @@ class FeatureConfig:
     height_tau_s: float = 2.0
     smooth_tau_s: float = 0.03
     facing_tau_s: float = 0.1
+
+
+@dataclass(frozen=True)
+class ScreenFacing:
+    """Where the game's screen (and camera) is, for rules that a single-camera tracker's heading
+    would otherwise break.
+
+    The player of the game faces the screen. A single camera measures where the body is (its
+    ground position, the image-plane coordinates of the hands) much better than which way the hips
+    point: on tracked game scripts the facing swings by up to 35 degrees either way for a fraction
+    of a second while the legs are apart or the arms up, while the true facing does not move.
+    Rules that need the player not to turn (the side-step's axes and turn limit, the "made in
+    place" rule of the arm gestures and the crouch) also accept a motion during which the player
+    *faced the screen*: the facing stayed within ``max_deg`` of ``yaw_deg`` and was on average
+    within ``mean_deg`` of it (a wander swings both ways and back; a player turned towards a side,
+    or turning for real, is off on average).
+
+    Attributes
+    ----------
+    yaw_deg : float
+        Facing of a player looking straight at the screen, degrees about +Y (0 = facing +Z, the
+        tracker's camera convention).
+    max_deg : float
+        The facing must stay within this of ``yaw_deg`` (the tracker's game mode confines it to
+        35 degrees).
+    mean_deg : float
+        The mean absolute difference between the facing and ``yaw_deg`` over the motion must not
+        exceed this (15, the side-step's: tracked steps need up to 12 degrees, the first real take
+        to give a false side-step 18; sideways walks turned 33-38 degrees away from the camera are
+        rejected. The in-place rule uses 30: tracked fire rings need up to 19).
+    """
+
+    yaw_deg: float = 0.0
+    max_deg: float = 40.0
+    mean_deg: float = 15.0
+
+    def faced(self, yaw: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """For a facing history ``yaw`` (radians, oldest first), whether the player faced the screen
+        from each sample to the last one (the last sample's own entry included)."""
+        off = np.abs((yaw[::-1] - math.radians(self.yaw_deg) + math.pi) % (2 * math.pi) - math.pi)
+        n = np.arange(1, len(off) + 1)
+        ok = (np.maximum.accumulate(off) <= math.radians(self.max_deg)) & (np.cumsum(off) / n
+                                                                           <= math.radians(self.mean_deg))
+        return ok[::-1]
 
 
 Vec3 = tuple[float, float, float]

@@ -14,7 +14,10 @@ for the gestures; this module adds what concerns the stream as a whole:
   machine starts over, so one arm movement yields one event;
 * **in place**: the game's gestures are made standing in place, facing the screen; an arm gesture
   or crouch during which the body turned or travelled (a dance spin, a stylised walk) is dropped
-  (:attr:`RecognizerConfig.still_max_turn_deg` and ``*_max_travel``);
+  (:attr:`RecognizerConfig.still_max_turn_deg` and ``*_max_travel``; the turn limit is waived while
+  the player faced the screen, :attr:`RecognizerConfig.still_screen`, because a single camera's
+  heading wanders);
+* **low-confidence frames** (:attr:`RecognizerConfig.min_confidence`) are not read;
 * a **refractory** period per gesture suppresses a repeat of the same gesture for
   :attr:`RecognizerConfig.refractory_s`.
 
@@ -45,7 +48,7 @@ from .detectors import (
     TransformDetector,
     TransformParams,
 )
-from .features import FeatureConfig, FeatureExtractor, FrameFeatures
+from .features import FeatureConfig, FeatureExtractor, FrameFeatures, ScreenFacing
 
 __all__ = ["ARM_GESTURES", "Gesture", "GestureEvent", "GestureRecognizer", "RecognizerConfig", "recognize"]
 
@@ -122,6 +125,20 @@ class RecognizerConfig:
         stylised walk) and is dropped. 55 degrees: a single-camera tracker's heading wanders by
         +-25 degrees while both arms are up (tracked game scripts); the first real take to give a
         false gesture needs 61.6 (`bench_game_margins.py`).
+    step_screen, still_screen : ScreenFacing or None
+        Where the screen is (the player of the game faces it; a single camera's heading wanders, see
+        :class:`~game_client.features.ScreenFacing`): the side-step is also measured along the
+        screen's axes while the player faced it by ``step_screen``, and the in-place rule's turn
+        limit does not apply while the player faced it by ``still_screen`` (the facing swings more
+        while both arms are up: tracked fire rings are off by up to 19 degrees on average; no real
+        take gives a false arm gesture or crouch even without the mean limit). ``None``: body
+        frame and turn limit only.
+    min_confidence : float
+        Frames whose tracker confidence is below this are not read (counted as ``low_confidence``;
+        a stretch of them longer than ``max_gap_s`` is a gap). The tracker reports < 0.05 when its
+        pose is garbage (tracked game scripts: 21 cm mean joint error and the body thrown up to 1.7 m
+        in depth for a frame or two, against 6-9 cm above 0.05), and one such frame in the middle of
+        a step reset every state machine as a glitch.
     still_depth_weight : float
         Weight of the depth axis (world ``z``, the camera's viewing direction) in that travel: a
         single camera measures depth several times less precisely than sideways motion (tracked
@@ -143,6 +160,9 @@ class RecognizerConfig:
     still_max_travel: float = 0.15
     crouch_max_travel: float = 0.25
     still_depth_weight: float = 0.5
+    step_screen: ScreenFacing | None = field(default_factory=ScreenFacing)
+    still_screen: ScreenFacing | None = field(default_factory=lambda: ScreenFacing(mean_deg=30.0))
+    min_confidence: float = 0.05
     enabled: tuple[Gesture, ...] = tuple(Gesture)
 
 
@@ -169,17 +189,19 @@ class _MotionHistory:
         self._buf[self._n] = (t, xz[0], xz[1], yaw)
         self._n += 1
 
-    def motion(self, t0: float, t1: float, depth_weight: float = 1.0) -> tuple[float, float]:
-        """Facing range (radians) and largest pelvis distance from its position at ``t0`` (metres,
-        the depth axis ``z`` scaled by ``depth_weight``) over ``[t0, t1]``; zeros if no sample
-        falls in the interval."""
+    def motion(self, t0: float, t1: float, depth_weight: float = 1.0,
+               screen: ScreenFacing | None = None) -> tuple[float, float, bool]:
+        """Facing range (radians), largest pelvis distance from its position at ``t0`` (metres,
+        the depth axis ``z`` scaled by ``depth_weight``) and whether the player faced ``screen``
+        (false without one) over ``[t0, t1]``; zeros (and true) if no sample falls in the interval."""
         b = self._buf[: self._n]
         i0, i1 = int(np.searchsorted(b[:, 0], t0)), int(np.searchsorted(b[:, 0], t1, side="right"))
         if i1 <= i0:
-            return 0.0, 0.0
+            return 0.0, 0.0, True
         w = b[i0:i1]
         travel = float(np.hypot(w[:, 1] - w[0, 1], depth_weight * (w[:, 2] - w[0, 2])).max())
-        return float(w[:, 3].max() - w[:, 3].min()), travel
+        faced = screen is not None and bool(screen.faced(w[:, 3])[0])
+        return float(w[:, 3].max() - w[:, 3].min()), travel, faced
 
 
 class GestureRecognizer:
@@ -195,7 +217,8 @@ class GestureRecognizer:
     ----------
     counters : dict[str, int]
         ``frames``, ``gaps`` (resets after a gap), ``restarts`` (time went backwards),
-        ``glitches``, ``unusable`` (torso not visible), ``duplicates`` (repeated time stamps).
+        ``glitches``, ``unusable`` (torso not visible), ``duplicates`` (repeated time stamps),
+        ``low_confidence`` (frames below :attr:`RecognizerConfig.min_confidence`, not read).
     """
 
     def __init__(self, config: RecognizerConfig | None = None, height_m: float | None = None) -> None:
@@ -204,11 +227,12 @@ class GestureRecognizer:
         self._detectors: dict[Gesture, Any] = {
             Gesture.TRANSFORM: TransformDetector(cfg.transform),
             Gesture.CROUCH: CrouchDetector(cfg.crouch),
-            Gesture.SIDE_STEP: SideStepDetector(cfg.side_step),
+            Gesture.SIDE_STEP: SideStepDetector(cfg.side_step, cfg.step_screen),
             Gesture.STRIKE: StrikeDetector(cfg.strike),
             Gesture.FIRE_RING: FireRingDetector(cfg.fire_ring),
         }
-        self.counters = dict.fromkeys(("frames", "gaps", "restarts", "glitches", "unusable", "duplicates"), 0)
+        self.counters = dict.fromkeys(
+            ("frames", "gaps", "restarts", "glitches", "unusable", "duplicates", "low_confidence"), 0)
         self._t_last: float | None = None
         self._pelvis_last: tuple[float, float] | None = None
         self._last_event: dict[Gesture, float] = {}
@@ -258,10 +282,13 @@ class GestureRecognizer:
             elif t == self._t_last:
                 self.counters["duplicates"] += 1
                 return []
-            elif t - self._t_last > cfg.max_gap_s:
-                self.counters["gaps"] += 1
-                self._reset_detectors()
-                self.features.reset()
+        if confidence < cfg.min_confidence:  # not read; the time since the last frame read keeps growing
+            self.counters["low_confidence"] += 1
+            return []
+        if self._t_last is not None and t - self._t_last > cfg.max_gap_s:
+            self.counters["gaps"] += 1
+            self._reset_detectors()
+            self.features.reset()
         self.counters["frames"] += 1
         f = self.features.update(t, joints, visibility, confidence)
         dt = 0.0 if self._t_last is None else t - self._t_last
@@ -284,9 +311,10 @@ class GestureRecognizer:
         cfg = self.config
         if gesture == Gesture.SIDE_STEP:
             return True
-        turn, travel = self._history.motion(cand.start_s - 0.2, f.t, cfg.still_depth_weight)
+        turn, travel, faced = self._history.motion(cand.start_s - 0.2, f.t, cfg.still_depth_weight,
+                                                   cfg.still_screen)
         limit = cfg.crouch_max_travel if gesture == Gesture.CROUCH else cfg.still_max_travel
-        return turn <= math.radians(cfg.still_max_turn_deg) and travel <= limit * f.height
+        return (turn <= math.radians(cfg.still_max_turn_deg) or faced) and travel <= limit * f.height
 
     def _run_detectors(self, f: FrameFeatures) -> list[GestureEvent]:
         cfg = self.config

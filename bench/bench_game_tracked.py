@@ -205,6 +205,8 @@ def main() -> int:
     ap.add_argument("--max-heading", type=float, default=35.0, metavar="DEG",
                     help="the tracker's game mode: the player faces the screen within DEG degrees (default 35, "
                          "as `mocap-tracker run --max-heading 35`; 0: any heading)")
+    ap.add_argument("--pose", choices=("mean", "map"), default="mean",
+                    help="the tracker's published pose, as `mocap-tracker run --pose` (default mean)")
     ap.add_argument("--cache", metavar="DIR", help="reuse tracked sequences stored in DIR and store new ones there "
                                                    "(e.g. out/game_tracked_cache; default: track everything afresh)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
@@ -212,7 +214,8 @@ def main() -> int:
 
     loaded = ensure_db(args.db)
     cfg = TrackerConfig(distance="xor", occlusion=True, body_candidates=tuple(b.name for b in BODY_MODELS),
-                        filter=FilterParams(max_heading=math.radians(args.max_heading) if args.max_heading else None))
+                        filter=FilterParams(max_heading=math.radians(args.max_heading) if args.max_heading else None),
+                        use_mean_pose=args.pose == "mean")
     labels = load_labels()
     names = (args.scripts.split(",") if args.scripts
              else [n for n in labels if not n.startswith("round_")])
@@ -222,8 +225,9 @@ def main() -> int:
         jobs += [(n, Variant(fps=FPS), args.seed) for n in labels if n.startswith("round_")]
 
     cache = Path(args.cache) if args.cache else None
-    base_key = {"lead_in": args.lead_in, "max_heading": args.max_heading, "fps": FPS, "db": str(loaded.path),
-                "templates": int(loaded.db.n_leaves), "source": _source_hash() if cache else None}
+    base_key = {"lead_in": args.lead_in, "max_heading": args.max_heading, "pose": args.pose, "fps": FPS,
+                "db": str(loaded.path), "templates": int(loaded.db.n_leaves),
+                "source": _source_hash() if cache else None}
     score_tracked, score_truth = Score(), Score()
     rows = []
     reused = 0
@@ -254,7 +258,7 @@ def main() -> int:
                         "scripts": loaded.meta.get("scripts", []), "body": loaded.body.name},
            "tracker": {"distance": cfg.distance, "occlusion": cfg.occlusion, "body": "auto",
                        "max_heading_deg": args.max_heading or None, "skin": cfg.skin is not None,
-                       "smoothing": cfg.smoothing is not None},
+                       "smoothing": cfg.smoothing is not None, "pose": args.pose},
            "lead_in_s": args.lead_in, "fps": FPS, "sequences": len(rows), "seeds": sorted({r["seed"] for r in rows}),
            "cache": str(cache) if cache else None, "reused_from_cache": reused,
            "tracked": _fmt(score_tracked), "truth": _fmt(score_truth),

@@ -175,7 +175,7 @@ class FilterParams:
     sigma: tuple[float, ...] = (0.01, 0.01, 0.01)
     keep_rel: float = 2e-3
     max_keep: tuple[int, ...] = (16, 48)
-    keep_likelihood: tuple[int, ...] = (8, 16)
+    keep_likelihood: tuple[int, ...] = (16, 32)
     grid: tuple[tuple[int, int], ...] = ((3, 3), (3, 1), (1, 1))
     refine: int = 6
     placement_sigma_px: float = 6.0

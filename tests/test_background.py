@@ -6,6 +6,8 @@ from tracker_service.background import (
     BackgroundParams,
     clean_mask,
     learn_background,
+    raw_foreground,
+    raw_foreground_reference,
     subtract,
     update_background,
 )
@@ -89,3 +91,19 @@ def test_bad_input_is_rejected(rng: np.random.Generator) -> None:
     model = learn_background(_frames(rng, _room(rng), 3))
     with pytest.raises(ValueError, match="does not match"):
         subtract(model, np.zeros((10, 10, 3), np.uint8))
+
+
+@pytest.mark.parametrize("gain", [0.7, 1.0, 1.15])
+def test_foreground_kernel_matches_numpy_reference(rng: np.random.Generator, gain: float) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 12))
+    frame = _frames(rng, base, 1, gain)[0]
+    frame[_person_mask()] = rng.integers(0, 256, (int(_person_mask().sum()), 3))
+    frame[:10, :10] = 0  # black pixels: chromaticity undefined
+    frame[-10:, -10:] = 255
+    for params in (BackgroundParams(), BackgroundParams(chroma_threshold=1.5, shadow_ratio=0.5, dark_level=60.0)):
+        fast = raw_foreground(model, frame, params)
+        ref = raw_foreground_reference(model, frame, params)
+        assert fast.dtype == bool and fast.shape == ref.shape
+        assert 0.01 < ref.mean() < 0.99  # both classes present: the comparison means something
+        np.testing.assert_array_equal(fast, ref)

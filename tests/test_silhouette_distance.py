@@ -92,3 +92,28 @@ def test_skeleton_and_distance_maps() -> None:
     skl = shape_skeleton(d_sbar)
     assert skl[19:21, 15:45].any(axis=0).all()  # the ridge runs along the middle rows
     assert not skl[~m].any()
+
+
+def test_grid_kernel_equals_flat_kernel(rng: np.random.Generator) -> None:
+    from tracker_service.features import preprocess
+    from tracker_service.silhouette_distance import evaluate_template_grid, evaluate_templates
+    h, w = 60, 80
+    obs = np.zeros((h, w), bool)
+    obs[10:50, 30:45] = True
+    obs[20:28, 15:65] = True
+    feats = preprocess(obs, "nwxor", sizes=((w, h),))[0]
+    masks = []
+    for _ in range(5):
+        m = np.zeros((h, w), bool)
+        y0, x0 = rng.integers(0, 20), rng.integers(0, 40)
+        m[y0: y0 + rng.integers(10, 40), x0: x0 + rng.integers(5, 35)] = True
+        masks.append(m)
+    rs = RunSet([mask_to_runs(m) for m in masks])
+    ids = np.array([0, 3, 4, 1], np.int64)
+    tr = np.stack([rng.normal(0, 4, (4, 9)), rng.normal(0, 2, (4, 9)), rng.uniform(0.8, 1.2, (4, 9))], -1)
+    tr[0, 0] = (-70.0, 0.0, 1.0)  # partly outside the image
+    grid = evaluate_template_grid(feats, rs, ids, tr, (40.0, 30.0))
+    flat = evaluate_templates(feats, rs, np.repeat(ids, 9), tr.reshape(-1, 3), (40.0, 30.0))
+    assert grid.shape == (4, 9)
+    assert len(np.unique(grid)) > 9  # placements differ: the comparison is not vacuous
+    np.testing.assert_array_equal(grid.ravel(), flat)

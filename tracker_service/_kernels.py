@@ -114,6 +114,56 @@ def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr
 
 
 @njit(cache=True, nogil=True)
+def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
+                          ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
+                          outside_cost: float, out: NDArray[np.float64]) -> None:
+    """:func:`eval_runs_kernel` for a grid of placements per template: each template's runs are
+    read once for all its ``G`` placements (the coarse levels' search grids). Same arithmetic.
+
+    Parameters
+    ----------
+    ids : (n,) int64
+        Template of each group.
+    transforms : (n, G, 3) float64
+        ``(dx, dy, s)`` of each evaluation.
+    out : (n, G) float64
+        Written with the sums.
+    Other parameters as :func:`eval_runs_kernel`.
+    """
+    h = integral.shape[0]
+    w = integral.shape[1] - 1
+    g_n = transforms.shape[1]
+    acc = np.empty(g_n)
+    for m in range(ids.shape[0]):
+        t = ids[m]
+        for g in range(g_n):
+            acc[g] = 0.0
+        for r in range(ptr[t], ptr[t + 1]):
+            y = data[r, 0]
+            x0 = data[r, 1]
+            x1 = data[r, 2]
+            for g in range(g_n):
+                dx = transforms[m, g, 0]
+                dy = transforms[m, g, 1]
+                s = transforms[m, g, 2]
+                ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+                yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+                xl = int(np.floor(cx + dx + s * (x0 - cx) + 0.5))
+                xr = int(np.floor(cx + dx + s * (x1 - cx) + 0.5))
+                if xr <= xl:
+                    continue
+                cl = min(max(xl, 0), w)
+                cr = min(max(xr, 0), w)
+                for yy in range(ya, yb):
+                    if yy < 0 or yy >= h:
+                        acc[g] += outside_cost * (xr - xl)
+                    else:
+                        acc[g] += integral[yy, cr] - integral[yy, cl] + outside_cost * ((xr - xl) - (cr - cl))
+        for g in range(g_n):
+            out[m, g] = acc[g]
+
+
+@njit(cache=True, nogil=True)
 def _popcount64(x: np.uint64) -> np.uint64:
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
     x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
@@ -575,3 +625,100 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
                     cov += 0.5 * (e / sigma) ** 2
                 acc += cover_weight * 2.0 * cov / k
             out[i, j] = acc
+
+
+@njit(cache=True, nogil=True)
+def foreground_kernel(frame: NDArray[np.uint8], chroma_mean: NDArray[np.float32], chroma_inv_var: NDArray[np.float32],
+                      bright_mean: NDArray[np.float32], bright_std: NDArray[np.float32], chroma_threshold: float,
+                      shadow_ratio: float, highlight_ratio: float, brightness_sigmas: float, dark_level: float,
+                      out: NDArray[np.bool_]) -> None:
+    """Per-pixel background test of :func:`tracker_service.background.raw_foreground`, fused.
+
+    Same arithmetic in float32 as the numpy reference (chromaticity Mahalanobis distance, brightness
+    ratio with its noise margin, dark pixels by brightness only).
+
+    Parameters
+    ----------
+    frame : (H, W, 3) uint8
+        BGR.
+    chroma_mean, chroma_inv_var : (H, W, 2) float32
+    bright_mean, bright_std : (H, W) float32
+    chroma_threshold, shadow_ratio, highlight_ratio, brightness_sigmas, dark_level : float
+    out : (H, W) bool
+        Written.
+    """
+    h, w = out.shape
+    eps = np.float32(1e-6)
+    one = np.float32(1.0)
+    thr = np.float32(chroma_threshold)
+    lo = np.float32(shadow_ratio)
+    hi = np.float32(highlight_ratio)
+    ks = np.float32(brightness_sigmas)
+    dark = np.float32(dark_level)
+    three = np.float32(3.0)
+    for y in range(h):
+        for x in range(w):
+            b0 = np.float32(frame[y, x, 0])
+            g0 = np.float32(frame[y, x, 1])
+            r0 = np.float32(frame[y, x, 2])
+            s = b0 + g0 + r0
+            den = max(s, eps)
+            d1 = g0 / den - chroma_mean[y, x, 0]
+            d2 = r0 / den - chroma_mean[y, x, 1]
+            maha = np.sqrt(d1 * d1 * chroma_inv_var[y, x, 0] + d2 * d2 * chroma_inv_var[y, x, 1])
+            bm = bright_mean[y, x]
+            bmc = max(bm, one)
+            b = s / three
+            ratio = b / bmc
+            margin = ks * bright_std[y, x] / bmc
+            fg = (ratio < lo - margin) or (ratio > hi + margin)
+            if not fg and bm > dark and b > dark and maha > thr:
+                fg = True
+            out[y, x] = fg
+
+
+@njit(cache=True, nogil=True)
+def leaf_prior_kernel(leaves: NDArray[np.int64], weights: NDArray[np.float64], nbr_idx: NDArray[np.int64],
+                      nbr_dpart: NDArray[np.float32], inv_var: NDArray[np.float64], trans_ptr: NDArray[np.int64],
+                      trans_idx: NDArray[np.int64], trans_p: NDArray[np.float32], hist_weight: float,
+                      prior: NDArray[np.float64]) -> None:
+    """Add the motion prior of the supported leaves to ``prior`` (eq. 13 with eq. 14's variances, and
+    the transition histograms of eq. 5): the loop of :func:`tracker_service.tree_filter.predict_leaves`.
+
+    Parameters
+    ----------
+    leaves : (M,) int64
+    weights : (M,) float64
+    nbr_idx : (NL, K) int64
+        Pose-space neighbours of every leaf.
+    nbr_dpart : (NL, K, N_PARTS) float32
+        Their squared per-part pose differences.
+    inv_var : (N_PARTS,) float64
+        Inverse variances per part.
+    trans_ptr, trans_idx, trans_p
+        CSR transition histograms.
+    hist_weight : float
+    prior : (NL,) float64
+        Accumulated into.
+    """
+    k = nbr_idx.shape[1]
+    npart = inv_var.shape[0]
+    g = np.empty(k)
+    for m in range(leaves.shape[0]):
+        leaf = leaves[m]
+        w = weights[m]
+        tot = 0.0
+        for j in range(k):
+            e = 0.0
+            for p in range(npart):
+                e += np.float64(nbr_dpart[leaf, j, p]) * inv_var[p]
+            g[j] = np.exp(-0.5 * e)
+            tot += g[j]
+        a, b = trans_ptr[leaf], trans_ptr[leaf + 1]
+        hw = hist_weight if b > a else 0.0
+        f = w * (1.0 - hw) / tot
+        for j in range(k):
+            prior[nbr_idx[leaf, j]] += f * g[j]
+        if hw != 0.0:
+            for t in range(a, b):
+                prior[trans_idx[t]] += w * hw * np.float64(trans_p[t])

@@ -19,7 +19,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BackgroundModel", "BackgroundParams", "learn_background", "subtract", "update_background"]
+from ._kernels import foreground_kernel
+
+__all__ = ["BackgroundModel", "BackgroundParams", "learn_background", "raw_foreground", "raw_foreground_reference",
+           "subtract", "update_background"]
 
 _EPS = 1e-6
 
@@ -125,7 +128,32 @@ def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
 
 def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
                    params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
-    """Per-pixel classification before clean-up.
+    """Per-pixel classification before clean-up (numba kernel; reference :func:`raw_foreground_reference`).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    params : BackgroundParams
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    if frame.shape[:2] != model.shape or frame.ndim != 3:
+        raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
+    out = np.empty(model.shape, bool)
+    f32 = np.float32
+    foreground_kernel(np.ascontiguousarray(frame, np.uint8), np.ascontiguousarray(model.chroma_mean, f32),
+                      np.ascontiguousarray(model.chroma_inv_var, f32), np.ascontiguousarray(model.bright_mean, f32),
+                      np.ascontiguousarray(model.bright_std, f32), params.chroma_threshold, params.shadow_ratio,
+                      params.highlight_ratio, params.brightness_sigmas, params.dark_level, out)
+    return out
+
+
+def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
+                   params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """Plain-numpy reference of :func:`raw_foreground` (a test holds the two equal).
 
     Parameters
     ----------

@@ -21,12 +21,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._kernels import eval_runs_kernel
+from ._kernels import eval_runs_grid_kernel, eval_runs_kernel
 from .features import Distance, LevelFeatures, core_weight
 
 __all__ = [
     "RunSet",
     "dense_distance",
+    "evaluate_template_grid",
     "evaluate_templates",
     "evaluate_templates_reference",
     "mask_to_runs",
@@ -130,6 +131,34 @@ def evaluate_templates(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int6
     out = np.empty(len(ids))
     eval_runs_kernel(feat.integral, runset.data, runset.ptr, np.ascontiguousarray(ids, np.int64),
                      np.ascontiguousarray(transforms, np.float64), float(center[0]), float(center[1]), oc, out)
+    out += feat.b
+    out /= feat.window_area
+    return out
+
+
+def evaluate_template_grid(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int64],
+                           transforms: NDArray[np.float64], center: tuple[float, float],
+                           outside_cost: float | None = None) -> NDArray[np.float64]:
+    """:func:`evaluate_templates` for a grid of placements per template (each template's runs are
+    read once for its whole grid; the same numbers).
+
+    Parameters
+    ----------
+    ids : (n,) int64
+        Template of each group.
+    transforms : (n, G, 3) float64
+        ``(dx, dy, s)`` of each evaluation, pixels of this level.
+    Other parameters as :func:`evaluate_templates`.
+
+    Returns
+    -------
+    (n, G) float64
+    """
+    oc = feat.shape[1] / 16.0 if outside_cost is None else float(outside_cost)
+    tr = np.ascontiguousarray(transforms, np.float64)
+    out = np.empty(tr.shape[:2])
+    eval_runs_grid_kernel(feat.integral, runset.data, runset.ptr, np.ascontiguousarray(ids, np.int64), tr,
+                          float(center[0]), float(center[1]), oc, out)
     out += feat.b
     out /= feat.window_area
     return out

@@ -168,7 +168,7 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
                                     f"{info['dtype']}; {hint}")
             if verify and zlib.crc32(np.ascontiguousarray(a).tobytes()) != info["crc32"]:
                 raise DatabaseError(f"{f} is corrupt (checksum mismatch); {hint}")
-            arrays[name] = a
+            arrays[name] = np.asarray(a)  # plain ndarray view of the mapping: no np.memmap overhead per index
         n_levels = int(man["n_levels"])
         tree = TemplateTree(
             node_template=[arrays[f"tree_node_template_{lvl}"] for lvl in range(n_levels)],

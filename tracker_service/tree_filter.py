@@ -31,9 +31,10 @@ from numpy.typing import NDArray
 from protocol.rotations import matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
 from protocol.skeleton import POSE_SIZE
 
+from ._kernels import leaf_prior_kernel
 from .features import LevelFeatures
 from .filter_model import Estimate, FilterDB, FilterParams, FilterState
-from .silhouette_distance import evaluate_templates
+from .silhouette_distance import evaluate_template_grid
 from .skin import HAND_PARTS, SkinObservation, skin_cost
 
 __all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "step"]
@@ -62,28 +63,41 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
         if not prior.any():
             prior[:] = 1.0
         return prior / prior.sum()
-    prior = np.zeros(nl)
     m2 = np.where(state.occluded, params.occlusion_m**2, 1.0)  # eq. 14
     inv_var = 1.0 / (db.sigma_part.astype(np.float64) ** 2 * m2)  # (N_PARTS,)
-    for leaf, w in zip(state.leaves, state.weights, strict=True):
-        # eq. 13: Gaussian around the previous pose, over the leaf's pose-space neighbours
-        g = np.exp(-0.5 * db.nbr_dpart[leaf].astype(np.float64) @ inv_var)
-        g /= g.sum()
-        a, b = db.trans_ptr[leaf], db.trans_ptr[leaf + 1]
-        hw = params.hist_weight if b > a else 0.0
-        prior[db.nbr_idx[leaf]] += w * (1.0 - hw) * g
-        if hw:
-            prior[db.trans_idx[a:b]] += w * hw * db.trans_p[a:b]
+    prior = np.zeros(nl)
+    # eq. 13: Gaussian around the previous pose over each leaf's pose-space neighbours, plus eq. 5's
+    # transition histograms (numba; reference: _motion_prior_reference)
+    leaf_prior_kernel(np.ascontiguousarray(state.leaves, np.int64), np.ascontiguousarray(state.weights, np.float64),
+                      db.nbr_idx, db.nbr_dpart, inv_var, db.trans_ptr, db.trans_idx, db.trans_p,
+                      float(params.hist_weight), prior)
     # re-acquisition mass, restricted to headings near the current one
     cur = db.leaf_heading[state.leaves].astype(np.float64)
     mean_heading = np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur))
-    near = (np.abs(np.angle(np.exp(1j * (db.leaf_heading - mean_heading)))) < params.max_turn) & allowed
+    turn = np.abs(np.remainder(db.leaf_heading - mean_heading + np.pi, 2.0 * np.pi) - np.pi)
+    near = (turn < params.max_turn) & allowed
     prior *= 1.0 - params.uniform_mass
     prior[near] += params.uniform_mass / max(int(near.sum()), 1)
     prior *= allowed
     if prior.sum() <= 0:
         prior = allowed.astype(np.float64)
     return prior / prior.sum()
+
+
+def _motion_prior_reference(leaves: NDArray[np.int64], weights: NDArray[np.float64], db: FilterDB,
+                            inv_var: NDArray[np.float64], hist_weight: float) -> NDArray[np.float64]:
+    """Plain-numpy reference of :func:`tracker_service._kernels.leaf_prior_kernel` (unnormalised
+    eq. 13 + eq. 5 mass of the supported leaves; a test holds the two equal)."""
+    prior = np.zeros(db.n_leaves)
+    for leaf, w in zip(leaves, weights, strict=True):
+        g = np.exp(-0.5 * db.nbr_dpart[leaf].astype(np.float64) @ inv_var)
+        g /= g.sum()
+        a, b = db.trans_ptr[leaf], db.trans_ptr[leaf + 1]
+        hw = hist_weight if b > a else 0.0
+        prior[db.nbr_idx[leaf]] += w * (1.0 - hw) * g
+        if hw:
+            prior[db.trans_idx[a:b]] += w * hw * db.trans_p[a:b]
+    return prior
 
 
 def _offsets(step_px: float, step_s: float, nx: int, ns: int) -> NDArray[np.float64]:
@@ -111,12 +125,11 @@ def _eval_level(db: FilterDB, feats: LevelFeatures, level: int, nodes: NDArray[n
     sc = db.level_scale[level]
     places = centers[:, None, :] + offsets[None, :, :]
     places[..., 2] = centers[:, None, 2] * (1.0 + offsets[None, :, 2])
-    tr = places.reshape(-1, 3).copy()
-    tr[:, :2] *= sc
-    ids = np.repeat(nodes, len(offsets))
+    tr = places.copy()
+    tr[..., :2] *= sc
     center = ((db.center[0] + 0.5) * sc - 0.5, (db.center[1] + 0.5) * sc - 0.5)  # pixel-centre convention
-    d = evaluate_templates(feats, db.level_runs[level], ids, tr, center)
-    return d.reshape(len(nodes), len(offsets)), places
+    d = evaluate_template_grid(feats, db.level_runs[level], nodes, tr, center)
+    return d, places
 
 
 def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -200,13 +200,14 @@ def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundPar
     k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
     if stats[k, cv2.CC_STAT_AREA] < params.min_area_frac * mask.size:
         return np.zeros(mask.shape, bool)
-    comp = (labels == k).astype(np.uint8)
-    # fill holes: background regions not connected to the border
-    inv = 1 - comp
-    _, lab_b, _, _ = cv2.connectedComponentsWithStats(inv, connectivity=4)
-    border = np.unique(np.concatenate([lab_b[0], lab_b[-1], lab_b[:, 0], lab_b[:, -1]]))
-    holes = (inv == 1) & ~np.isin(lab_b, border)
-    return (comp == 1) | holes
+    comp = labels == k
+    # fill holes: background regions not 4-connected to the border (flood the background from a
+    # one-pixel frame around the image; what the flood does not reach is inside the body)
+    h, w = mask.shape
+    outside = np.zeros((h + 2, w + 2), np.uint8)
+    outside[1:-1, 1:-1] = comp
+    cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+    return outside[1:-1, 1:-1] != 2
 
 
 def subtract(model: BackgroundModel, frame: NDArray[np.uint8],

@@ -134,20 +134,29 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
     w = integral.shape[1] - 1
     g_n = transforms.shape[1]
     acc = np.empty(g_n)
+    ya_g = np.empty(g_n, np.int64)
+    yb_g = np.empty(g_n, np.int64)
     for m in range(ids.shape[0]):
         t = ids[m]
         for g in range(g_n):
             acc[g] = 0.0
+        y_prev = -1
         for r in range(ptr[t], ptr[t + 1]):
             y = data[r, 0]
             x0 = data[r, 1]
             x1 = data[r, 2]
+            if y != y_prev:  # a row's runs are consecutive: its target rows once per placement
+                for g in range(g_n):
+                    dy = transforms[m, g, 1]
+                    s = transforms[m, g, 2]
+                    ya_g[g] = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+                    yb_g[g] = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+                y_prev = y
             for g in range(g_n):
                 dx = transforms[m, g, 0]
-                dy = transforms[m, g, 1]
                 s = transforms[m, g, 2]
-                ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
-                yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+                ya = ya_g[g]
+                yb = yb_g[g]
                 xl = int(np.floor(cx + dx + s * (x0 - cx) + 0.5))
                 xr = int(np.floor(cx + dx + s * (x1 - cx) + 0.5))
                 if xr <= xl:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from protocol.motion import Motion
 
@@ -23,7 +24,7 @@ from .scene import SceneConfig, SyntheticScene
 from .template_db import LoadedDatabase
 from .tree_filter import initial_state
 
-__all__ = ["EvalOptions", "evaluate_motion"]
+__all__ = ["EvalOptions", "evaluate_motion", "reacquisition_times"]
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +43,10 @@ class EvalOptions:
         Empty-room frames for background learning.
     force_loss_every_s : float
         Force a tracking loss (the filter is reset to a wrong pose) every this many seconds of
-        tracking (0: never); re-acquisition time is measured after each.
+        tracking (0: never); re-acquisition time is measured after each: the time until three
+        frames in a row are back within 10 cm (or within 1.25 x the median error of the second
+        before the loss, where the track was worse than 10 cm). A loss in the clip's last second
+        is not judged.
     fps : float
         Frame rate of the rendered video.
     in_place_travel_m : float
@@ -63,6 +67,49 @@ def _stats(v: list[float]) -> dict[str, float]:
     if a.size == 0:
         return {"min": float("nan"), "avg": float("nan"), "max": float("nan")}
     return {"min": round(float(a.min()), 3), "avg": round(float(a.mean()), 3), "max": round(float(a.max()), 3)}
+
+
+def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses: list[int], fps: float,
+                        within_m: float = 0.10, relative: float = 1.25, run: int = 3,
+                        min_left_s: float = 1.0) -> list[float]:
+    """Time (s) from each forced loss until the track is back.
+
+    Back means ``run`` frames in a row within ``within_m`` of the truth, or, where the track was
+    worse than that in the second before the loss, within ``relative`` x its median error then
+    (a take the tracker follows at 12 cm is back at 15 cm, not never). The time counts from the
+    loss to the first frame of the run. A loss with less than ``min_left_s`` of the clip after it
+    is not judged; one never back is ``inf``.
+
+    Parameters
+    ----------
+    t : (F,) float64
+        Timestamps of the evaluated frames.
+    err : (F,) float64
+        Root-relative mean joint error of each (metres).
+    losses : list of int
+        Index (into ``t``) of the frame at which each loss was forced.
+    fps : float
+
+    Returns
+    -------
+    list of float
+    """
+    out: list[float] = []
+    n_before = max(round(fps), 1)
+    for k in losses:
+        if t[-1] - t[k] < min_left_s:
+            continue
+        before = err[max(k - n_before, 0): k]
+        thr = max(within_m, relative * float(np.median(before))) if len(before) else within_m
+        ok = err[k + 1:] < thr
+        streak, found = 0, float("inf")
+        for j, good in enumerate(ok):
+            streak = streak + 1 if good else 0
+            if streak >= run:
+                found = float(t[k + 1 + j - run + 1] - t[k])
+                break
+        out.append(found)
+    return out
 
 
 def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, options: EvalOptions,
@@ -96,7 +143,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         init_ms = 0.0
         evals: list[tuple[int, ...]] = []
         lost_at: float | None = None
-        reacq: list[float] = []
+        err_t: list[float] = []  # timestamps of the evaluated frames (errs)
+        losses: list[int] = []  # index into errs of each forced loss
         next_loss = options.force_loss_every_s
         track_time = 0.0
         streak = 0
@@ -122,11 +170,11 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             else:
                 init_ms += res.stage_ms.get("total", 0.0)
             t = fr.timestamp
+            err_t.append(t)
             if lost_at is not None:
                 streak = streak + 1 if e < 0.10 else 0
-                if streak >= 3:
-                    reacq.append(t - lost_at - 2.0 / options.fps)
-                    lost_at = None
+                if streak >= 3:  # the next loss waits for the track to be back within 10 cm
+                    lost_at = None  # (the time is measured afterwards by reacquisition_times)
             elif res.phase == "tracking":
                 track_time += 1.0 / options.fps
                 if options.force_loss_every_s > 0 and track_time >= next_loss:
@@ -134,14 +182,14 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
                     wrong = initial_state(state.filter.placement)
                     state = replace(state, filter=wrong)
                     lost_at, streak = t, 0
+                    losses.append(len(errs) - 1)
                     next_loss += options.force_loss_every_s
             if progress is not None:
                 progress(i + 1, n)
-        if lost_at is not None:
-            reacq.append(float("inf"))
     finally:
         scene.close()
     e_arr = np.asarray(errs)
+    reacq = reacquisition_times(np.asarray(err_t), e_arr, losses, options.fps)
     lvl = np.asarray(evals, dtype=np.float64) if evals else np.zeros((0, 3))
     total_ms = float(np.mean(t_tot)) if t_tot else float("nan")
     return {

@@ -1,0 +1,40 @@
+import math
+
+import numpy as np
+import pytest
+
+from tracker_service.evaluate import reacquisition_times
+
+FPS = 30.0
+
+
+def _clip(err: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    return np.arange(len(err)) / FPS, np.asarray(err, float)
+
+
+def test_back_within_10cm_counts_from_the_loss_to_the_first_good_frame() -> None:
+    err = [0.05] * 30 + [0.40] * 10 + [0.06] * 40  # loss at frame 29; good again from frame 40
+    t, e = _clip(err)
+    (dt,) = reacquisition_times(t, e, [29], FPS)
+    assert dt == pytest.approx(11 / FPS)
+
+
+def test_a_track_worse_than_10cm_is_back_at_its_own_accuracy() -> None:
+    err = [0.14] * 30 + [0.45] * 6 + [0.16] * 40  # 0.16 < 1.25 x 0.14
+    t, e = _clip(err)
+    assert reacquisition_times(t, e, [29], FPS) == [pytest.approx(7 / FPS)]
+    assert reacquisition_times(t, e, [29], FPS, relative=1.0) == [math.inf]  # never within 14 cm
+
+
+def test_isolated_good_frames_are_not_a_reacquisition() -> None:
+    err = [0.05] * 30 + [0.3, 0.05, 0.05, 0.3] * 8 + [0.05] * 30
+    t, e = _clip(err)
+    (dt,) = reacquisition_times(t, e, [29], FPS)
+    assert dt == pytest.approx(33 / FPS)
+
+
+def test_a_loss_in_the_last_second_is_not_judged() -> None:
+    err = [0.05] * 40 + [0.4] * 40
+    t, e = _clip(err)
+    assert reacquisition_times(t, e, [60], FPS) == []  # 0.63 s left
+    assert reacquisition_times(t, e, [39], FPS) == [math.inf]  # 1.33 s left and never back

@@ -45,8 +45,8 @@ class EvalOptions:
         Force a tracking loss (the filter is reset to a wrong pose) every this many seconds of
         tracking (0: never); re-acquisition time is measured after each: the time until three
         frames in a row are back within 10 cm (or within 1.25 x the median error of the second
-        before the loss, where the track was worse than 10 cm). A loss in the clip's last second
-        is not judged.
+        before the loss, where the track was worse than 10 cm). A loss not yet back in the clip's
+        last second is not judged.
     fps : float
         Frame rate of the rendered video.
     in_place_travel_m : float
@@ -77,8 +77,8 @@ def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses
     Back means ``run`` frames in a row within ``within_m`` of the truth, or, where the track was
     worse than that in the second before the loss, within ``relative`` x its median error then
     (a take the tracker follows at 12 cm is back at 15 cm, not never). The time counts from the
-    loss to the first frame of the run. A loss with less than ``min_left_s`` of the clip after it
-    is not judged; one never back is ``inf``.
+    loss to the first frame of the run. A loss not yet back with less than ``min_left_s`` of the
+    clip after it is not judged; one never back is ``inf``.
 
     Parameters
     ----------
@@ -97,8 +97,6 @@ def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses
     out: list[float] = []
     n_before = max(round(fps), 1)
     for k in losses:
-        if t[-1] - t[k] < min_left_s:
-            continue
         before = err[max(k - n_before, 0): k]
         thr = max(within_m, relative * float(np.median(before))) if len(before) else within_m
         ok = err[k + 1:] < thr
@@ -108,7 +106,8 @@ def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses
             if streak >= run:
                 found = float(t[k + 1 + j - run + 1] - t[k])
                 break
-        out.append(found)
+        if np.isfinite(found) or t[-1] - t[k] >= min_left_s:  # not back, too little clip left: unjudged
+            out.append(found)
     return out
 
 

@@ -34,9 +34,9 @@ def test_isolated_good_frames_are_not_a_reacquisition() -> None:
 
 
 def test_a_loss_not_yet_back_in_the_last_second_is_not_judged() -> None:
-    err = [0.05] * 40 + [0.4] * 40
-    t, e = _clip(err)
-    assert reacquisition_times(t, e, [60], FPS) == []  # 0.63 s left
+    t, e = _clip([0.05] * 62 + [0.4] * 18)
+    assert reacquisition_times(t, e, [61], FPS) == []  # 0.6 s left
+    t, e = _clip([0.05] * 40 + [0.4] * 40)
     assert reacquisition_times(t, e, [39], FPS) == [math.inf]  # 1.33 s left and never back
     quick = [0.05] * 70 + [0.4, 0.05, 0.05, 0.05, 0.05]
     t, e = _clip(quick)

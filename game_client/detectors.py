@@ -368,6 +368,19 @@ class TransformParams:
     chest_fwd_max: float = 0.22
     chest_hold_s: float = 0.06
     chest_still: float = 0.08  # each wrist coordinate moves at most this far during the chest hold
+    straight_max_deg: float = 25.0  # the bent path needs the arms seen straight in the T (mean bend) ...
+    fold_min_deg: float = 50.0  # ... and then folded this much on average ...
+    fold_out_min: float = 0.18  # ... while the wrists were still this far out on average (coming in) ...
+    fold_window_s: float = 0.6  # ... within this time of the last straight T frame
+    bent_min_deg: float | None = 40.0  # or: elbows bent this much on average (None: chest zone only)
+    bent_each_min_deg: float = 25.0  # ... each at least this much
+    bent_out_max: float = 0.20  # ... with both wrists inside this (not out to the sides)
+    bent_up_min: float = -0.33  # ... and between these heights (below the mouth: hands to the face are not on
+    bent_up_max: float = -0.10  # the chest)
+    bent_fwd_min: float = -0.08  # ... and not behind the back
+    bent_elbow_up_max: float = -0.05  # ... and the elbows down (not raised)
+    bent_hold_s: float = 0.12  # ... held this long, moving < chest_still (not arms passing through)
+    bend_hysteresis_deg: float = 5.0
     max_gap_s: float = 2.0
     max_swings: int = 3
     min_swing: float = 0.08
@@ -388,6 +401,9 @@ class TransformDetector:
         self.t_out = self.t_out_last = self.t_chest = self.t_seen = -math.inf
         self.out_margin = 0.0
         self.chest_at: tuple[float, ...] | None = None
+        self.folded = False
+        self.t_straight = -math.inf
+        self.chest_zone = True
         self.swings.reset()
 
     def _is_out(self, w: Vec3, slack: float) -> bool:
@@ -398,6 +414,32 @@ class TransformDetector:
         return bool(w[0] <= p.chest_out_max + slack and p.chest_up_min - slack <= w[1] <= p.chest_up_max + slack
                     and p.chest_fwd_min - slack <= w[2] <= p.chest_fwd_max + slack)
 
+    def _bent_in(self, w: Vec3, e: Vec3, slack: float) -> bool:
+        p = self.p
+        return bool(w[0] <= p.bent_out_max + slack and p.bent_up_min - slack <= w[1] <= p.bent_up_max + slack
+                    and w[2] >= p.bent_fwd_min - slack and e[1] <= p.bent_elbow_up_max + slack)
+
+    def _in_zone(self, f: FrameFeatures, slack: float) -> bool:
+        assert f.wrist_l is not None and f.wrist_r is not None
+        return self._on_chest(f.wrist_l, slack) and self._on_chest(f.wrist_r, slack)
+
+    def _hands_in(self, f: FrameFeatures, slack: float) -> bool:
+        """Both hands brought onto the chest: both wrists in the chest zone, or (the arms having folded
+        on their way in) both elbows bent with the wrists in front of the torso, below the face (what
+        a single camera sees of hands on the chest; ``slack`` widens every bound, by ``slack`` H and
+        ``bend_hysteresis_deg`` degrees)."""
+        p = self.p
+        wl, wr, el, er = f.wrist_l, f.wrist_r, f.elbow_l, f.elbow_r
+        assert wl is not None and wr is not None
+        if self._in_zone(f, slack):
+            return True
+        if p.bent_min_deg is None or not self.folded or el is None or er is None:
+            return False
+        deg = p.bend_hysteresis_deg if slack > 0.0 else 0.0
+        return bool(0.5 * (f.bend_l + f.bend_r) >= p.bent_min_deg - deg
+                    and min(f.bend_l, f.bend_r) >= p.bent_each_min_deg - deg
+                    and self._bent_in(wl, el, slack) and self._bent_in(wr, er, slack))
+
     def update(self, f: FrameFeatures) -> Candidate | None:
         p = self.p
         if not _seen(self, f.t, f.ok and f.arm_l_ok and f.arm_r_ok, p.occlusion_hold_s):
@@ -407,8 +449,11 @@ class TransformDetector:
         both_out = self._is_out(wl, 0.0) and self._is_out(wr, 0.0)
         still_out = self._is_out(wl, p.hysteresis) and self._is_out(wr, p.hysteresis)
         if self.state == "idle" and both_out:
-            self.state, self.t_out, self.out_margin = "out_pending", f.t, 0.0
+            self.state, self.t_out, self.out_margin, self.folded = "out_pending", f.t, 0.0, False
             self.swings.reset()
+        bend = 0.5 * (f.bend_l + f.bend_r)
+        if self.state in ("out_pending", "out") and still_out and bend <= p.straight_max_deg:
+            self.t_straight = f.t
         if self.state == "out_pending":
             if not still_out:
                 self.state = "idle"
@@ -419,21 +464,25 @@ class TransformDetector:
                     self.state, self.t_out_last = "out", f.t
         elif self.state == "out":
             self.swings.add(wl[0], wr[0])  # arms going in and out (waving) are not a transformation
+            self.folded = self.folded or (bend >= p.fold_min_deg and 0.5 * (wl[0] + wr[0]) >= p.fold_out_min
+                                          and f.t - self.t_straight <= p.fold_window_s)
             if still_out:
                 self.t_out_last = f.t
             elif f.t - self.t_out_last > p.max_gap_s or self.swings.count > p.max_swings:
                 log.debug("transform at %.2f s abandoned: %.2f s since arms out, %d swings", f.t,
                           f.t - self.t_out_last, self.swings.count)
                 self.reset()
-            elif self._on_chest(wl, 0.0) and self._on_chest(wr, 0.0):
+            elif self._hands_in(f, 0.0):
                 self.state, self.t_chest, self.chest_at = "chest", f.t, wl + wr
+                self.chest_zone = self._in_zone(f, 0.0)
         elif self.state == "chest":
             assert self.chest_at is not None
             moved = max(abs(a - b) for a, b in zip(wl + wr, self.chest_at, strict=True))
-            if not (self._on_chest(wl, p.hysteresis) and self._on_chest(wr, p.hysteresis)) or moved > p.chest_still:
+            hold = p.chest_hold_s if self.chest_zone else p.bent_hold_s
+            if not self._hands_in(f, p.hysteresis) or moved > p.chest_still:
                 log.debug("transform at %.2f s: hands left the chest (moved %.3f H)", f.t, moved)
                 self.state = "out" if f.t - self.t_out_last <= p.max_gap_s else "idle"
-            elif f.t - self.t_chest >= p.chest_hold_s:
+            elif f.t - self.t_chest >= hold:
                 gap = self.t_chest - self.t_out_last
                 cand = Candidate(self.t_out, self.t_chest,
                                  0.5 * clip01(self.out_margin / 0.12) + 0.5 * clip01(1.0 - gap / p.max_gap_s))

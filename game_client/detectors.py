@@ -22,7 +22,11 @@ transform
     ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
     hands reach the chest. (A single camera sees hands in front of the torso only inside its
     silhouette: the tracker reports hands on the chest lower and wider than they are, hands
-    hanging at the sides at >= 0.11 H out and below -0.26.)
+    hanging at the sides at >= 0.11 H out and below -0.26.) Or, where the tracker puts the hands
+    where hanging hands would be, the elbows tell: if the arms were seen straight in the T (mean
+    elbow bend <= 25 deg) and folded (>= 50 deg) while the wrists were still >= 0.18 H out, within
+    0.6 s, both elbows bent (mean >= 40 deg, each >= 25) with the wrists in front of the torso
+    (``out <= 0.20``, ``-0.33 <= up <= -0.10``: not at the face) held 0.12 s also count.
 crouch (:mod:`game_client.body_detectors`)
     From standing (pelvis height over the lower ankle >= 0.88 leg lengths) down to <= 0.65 leg
     lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing).
@@ -42,7 +46,8 @@ strike
     opponent, not an arm circle coming down at the side or behind). Ends when it passes ``-0.15``.
 fire_ring
     Both wrists rise to ``up >= -0.08`` (about shoulder height or above), apart (>= 0.12 H) and at
-    some point not stretched out sideways (``out <= 0.36``: not a T-pose), for 0.45-3.3 s, then
+    some point not stretched out sideways for 0.1 s in a row (``out <= 0.36``: not a T-pose, nor
+    arms passing in from a T towards the chest), for 0.45-3.3 s, then
     both fall to ``up <= -0.22`` within 0.5 s of leaving that zone. The raise must be seen: after
     a reset (stream start, gap, glitch, long occlusion) the arms must first be seen below the
     raised zone (``up < -0.10``), so arms that are already up when the recogniser joins and are
@@ -152,7 +157,8 @@ class FireRingParams:
     max_raised_s: float = 3.3
     max_drop_s: float = 0.5
     min_separation: float = 0.12
-    max_out: float = 0.36  # both wrists must at some point be up with out <= this (not a T)
+    max_out: float = 0.36  # both wrists must at some point be up with out <= this (not a T) ...
+    upright_s: float = 0.1  # ... for this long in a row (not arms passing from a T towards the chest)
     max_swings: int = 4
     min_swing: float = 0.06
     rhythm_gap_s: float = 0.6
@@ -188,6 +194,7 @@ class FireRingDetector:
         self.min_sep = math.inf
         self.rhythmic = False
         self.upright = False
+        self.t_upright = math.inf  # since when the arms have been up and not stretched out (inf: not now)
         self.seen_low = seen or not self.p.raise_seen
         self.swings.reset()
 
@@ -214,11 +221,15 @@ class FireRingDetector:
                 self.state = "raised"
                 self.t_raised = _cross_time(self.t_prev, self.prev_lo, f.t, lo, p.raise_up)
                 self.rhythmic = 0.0 <= self.t_raised - self.t_cycle_end < p.rhythm_gap_s
-                self.peak, self.min_sep, self.upright = lo, math.inf, False
+                self.peak, self.min_sep, self.upright, self.t_upright = lo, math.inf, False, math.inf
                 self.swings.reset()
         if self.state == "raised":
             self.peak = max(self.peak, lo)
-            self.upright = self.upright or (lo >= p.raise_up and max(wl[0], wr[0]) <= p.max_out)
+            if lo >= p.raise_up and max(wl[0], wr[0]) <= p.max_out:
+                self.t_upright = min(self.t_upright, f.t)
+                self.upright = self.upright or f.t - self.t_upright >= p.upright_s - 1e-9
+            else:
+                self.t_upright = math.inf
             self.min_sep = min(self.min_sep, wl[0] + wr[0])
             self.swings.add(wl[0], wl[2], wr[0], wr[2])
             if lo < p.raise_up - p.hysteresis:
@@ -477,6 +488,8 @@ class TransformDetector:
                 self.chest_zone = self._in_zone(f, 0.0)
         elif self.state == "chest":
             assert self.chest_at is not None
+            if not self.chest_zone and self._in_zone(f, 0.0):  # the hands reached the zone: its (shorter) hold
+                self.chest_zone, self.t_chest, self.chest_at = True, f.t, wl + wr
             moved = max(abs(a - b) for a, b in zip(wl + wr, self.chest_at, strict=True))
             hold = p.chest_hold_s if self.chest_zone else p.bent_hold_s
             if not self._hands_in(f, p.hysteresis) or moved > p.chest_still:

@@ -19,12 +19,12 @@ crouches made while the body turned or travelled (a dance, a walk).
 transform
     Both wrists out to the sides near shoulder height (``out >= 0.28``, ``|up| <= 0.12``) for
     0.12 s, then within 2 s both wrists resting on the chest (``out <= 0.13``,
-    ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
+    ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, out and up moving < 0.08 H) for 0.06 s. Ends when the
     hands reach the chest. (A single camera sees hands in front of the torso only inside its
     silhouette: the tracker reports hands on the chest lower and wider than they are, hands
     hanging at the sides at >= 0.11 H out and below -0.26.) Or, where the tracker puts the hands
     where hanging hands would be, the elbows tell: if the arms were seen straight in the T (mean
-    elbow bend <= 25 deg) and folded (>= 50 deg) while the wrists were still >= 0.18 H out, within
+    elbow bend <= 25 deg) and folded (>= 60 deg) while the wrists were still >= 0.18 H out, within
     0.6 s, both elbows bent (mean >= 40 deg, each >= 25) with the wrists in front of the torso
     (``out <= 0.20``, ``-0.33 <= up <= -0.10``: not at the face) held 0.12 s also count.
 crouch (:mod:`game_client.body_detectors`)
@@ -378,9 +378,10 @@ class TransformParams:
     chest_fwd_min: float = 0.0
     chest_fwd_max: float = 0.22
     chest_hold_s: float = 0.06
-    chest_still: float = 0.08  # each wrist coordinate moves at most this far during the chest hold
+    chest_still: float = 0.08  # each wrist's out and up move at most this far during the chest hold (not its
+    # forward offset: a single camera's depth of a hand on the chest jumps by 0.1-0.2 H between frames)
     straight_max_deg: float = 25.0  # the bent path needs the arms seen straight in the T (mean bend) ...
-    fold_min_deg: float = 50.0  # ... and then folded this much on average ...
+    fold_min_deg: float = 60.0  # ... and then folded this much on average ...
     fold_out_min: float = 0.18  # ... while the wrists were still this far out on average (coming in) ...
     fold_window_s: float = 0.6  # ... within this time of the last straight T frame
     bent_min_deg: float | None = 40.0  # or: elbows bent this much on average (None: chest zone only)
@@ -490,7 +491,7 @@ class TransformDetector:
             assert self.chest_at is not None
             if not self.chest_zone and self._in_zone(f, 0.0):  # the hands reached the zone: its (shorter) hold
                 self.chest_zone, self.t_chest, self.chest_at = True, f.t, wl + wr
-            moved = max(abs(a - b) for a, b in zip(wl + wr, self.chest_at, strict=True))
+            moved = max(abs(a - b) for k, (a, b) in enumerate(zip(wl + wr, self.chest_at, strict=True)) if k % 3 != 2)
             hold = p.chest_hold_s if self.chest_zone else p.bent_hold_s
             if not self._hands_in(f, p.hysteresis) or moved > p.chest_still:
                 log.debug("transform at %.2f s: hands left the chest (moved %.3f H)", f.t, moved)

@@ -4,6 +4,8 @@ reported low and wide (measured on tracked synthetic video, ``bench/bench_game_t
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from numpy.typing import NDArray
@@ -214,3 +216,21 @@ def test_bent_hands_passing_through_do_not_rest_on_the_chest() -> None:
     p = TransformParams(chest_out_max=0.10)  # keep the chest zone out of it
     assert _run(TransformDetector(p), _arm_frames(keys)) == []
     assert len(_run(TransformDetector(TransformParams(chest_out_max=0.10, bent_hold_s=0.0)), _arm_frames(keys))) == 1
+
+
+def test_hands_resting_on_the_chest_may_jump_in_depth() -> None:
+    """The tracker's depth of a hand on the chest jumps by 0.1-0.2 H between frames (`transform`
+    x1.25 seed 72: one wrist from 0.09 H in front of the shoulders to 0.08 H behind); the hands rest if
+    they stay put across and along the screen (out, up), not if they move there."""
+    def jitter(axis: int, amp: float) -> list[FrameFeatures]:
+        out = []
+        for k, f in enumerate(_transform_frames((0.10, -0.20, 0.04))):
+            if f.t > 0.8 and f.wrist_l is not None:
+                w = list(f.wrist_l)
+                w[axis] += amp * (k % 2)
+                f = replace(f, wrist_l=(w[0], w[1], w[2]))
+            out.append(f)
+        return out
+
+    assert len(_run(TransformDetector(TransformParams()), jitter(2, 0.15))) == 1  # depth: 0.04 <-> 0.19
+    assert _run(TransformDetector(TransformParams()), jitter(1, 0.09)) == []  # up and down: not resting

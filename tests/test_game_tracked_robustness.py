@@ -185,11 +185,16 @@ def test_transform_from_bent_elbows_where_the_tracker_loses_the_hands() -> None:
 
 def test_arms_lowered_straight_then_tracked_bent_are_not_a_transform() -> None:
     """Arms lowered straight from the T (`neg_arms_out_down`), the tracker bending the hanging arms
-    only once they are down (seed 42): they did not fold on the way in."""
+    only once they are down (seed 42), or a little on the way down (seeds 71-72): they did not fold
+    on the way in."""
     keys: list[Key] = [(0.0, *_T_POSE, 10.0), (0.5, *_T_POSE, 10.0), (0.6, *_FOLDING, 25.0),
                        (0.7, *_TRACKED_CHEST, 25.0), (0.8, *_TRACKED_CHEST, 70.0)]
     assert _run(TransformDetector(TransformParams()), _arm_frames(keys)) == []
     assert len(_run(TransformDetector(TransformParams(fold_out_min=0.0)), _arm_frames(keys))) == 1
+    # person 71: the straight arms are tracked folding to 52 degrees on the way down, hanging bent 42
+    keys = [(0.0, *_T_POSE, 10.0), (0.5, *_T_POSE, 10.0), (0.6, *_FOLDING, 52.0), (0.7, *_TRACKED_CHEST, 42.0)]
+    assert _run(TransformDetector(TransformParams()), _arm_frames(keys)) == []
+    assert len(_run(TransformDetector(TransformParams(fold_min_deg=50.0)), _arm_frames(keys))) == 1
 
 
 def test_bent_arms_out_then_lowered_are_not_a_transform() -> None:

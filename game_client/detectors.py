@@ -491,7 +491,8 @@ class TransformDetector:
             assert self.chest_at is not None
             if not self.chest_zone and self._in_zone(f, 0.0):  # the hands reached the zone: its (shorter) hold
                 self.chest_zone, self.t_chest, self.chest_at = True, f.t, wl + wr
-            moved = max(abs(a - b) for k, (a, b) in enumerate(zip(wl + wr, self.chest_at, strict=True)) if k % 3 != 2)
+            moved = max(abs(a - b) for k, (a, b) in enumerate(zip(wl + wr, self.chest_at, strict=True))
+                        if k % 3 != 2)  # out and up only: not the forward offsets (see chest_still)
             hold = p.chest_hold_s if self.chest_zone else p.bent_hold_s
             if not self._hands_in(f, p.hysteresis) or moved > p.chest_still:
                 log.debug("transform at %.2f s: hands left the chest (moved %.3f H)", f.t, moved)

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+import tracker_service
 from game_client.evaluation import Score, match_events
 from game_client.gestures import GestureEvent, GestureRecognizer, RecognizerConfig
 from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
@@ -146,8 +147,9 @@ def recognise_sequence(seq: dict[str, Any], config: RecognizerConfig | None = No
 
 def _source_hash() -> str:
     """Hash of what a tracked sequence depends on besides its arguments: the tracker's and the
-    scripts' source."""
-    root = Path(__file__).resolve().parent.parent
+    scripts' source, as imported (in a git worktree whose venv's editable install points at another
+    checkout, that checkout's tracker runs, so its source is what the key must name)."""
+    root = Path(tracker_service.__file__).resolve().parent.parent
     h = hashlib.sha256()
     for p in sorted([*(root / "tracker_service").rglob("*.py"), *(root / "game_client" / "scripts").glob("*.toml"),
                      root / "game_client" / "variants.py", root / "protocol" / "motion.py"]):

@@ -19,10 +19,14 @@ crouches made while the body turned or travelled (a dance, a walk).
 transform
     Both wrists out to the sides near shoulder height (``out >= 0.28``, ``|up| <= 0.12``) for
     0.12 s, then within 2 s both wrists resting on the chest (``out <= 0.13``,
-    ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, moving < 0.08 H) for 0.06 s. Ends when the
+    ``-0.26 <= up <= 0.02``, ``0 <= fwd <= 0.22``, out and up moving < 0.08 H) for 0.06 s. Ends when the
     hands reach the chest. (A single camera sees hands in front of the torso only inside its
     silhouette: the tracker reports hands on the chest lower and wider than they are, hands
-    hanging at the sides at >= 0.11 H out and below -0.26.)
+    hanging at the sides at >= 0.11 H out and below -0.26.) Or, where the tracker puts the hands
+    where hanging hands would be, the elbows tell: if the arms were seen straight in the T (mean
+    elbow bend <= 25 deg) and folded (>= 60 deg) while the wrists were still >= 0.18 H out, within
+    0.6 s, both elbows bent (mean >= 40 deg, each >= 25) with the wrists in front of the torso
+    (``out <= 0.20``, ``-0.33 <= up <= -0.10``: not at the face) held 0.12 s also count.
 crouch (:mod:`game_client.body_detectors`)
     From standing (pelvis height over the lower ankle >= 0.88 leg lengths) down to <= 0.65 leg
     lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing).
@@ -42,7 +46,8 @@ strike
     opponent, not an arm circle coming down at the side or behind). Ends when it passes ``-0.15``.
 fire_ring
     Both wrists rise to ``up >= -0.08`` (about shoulder height or above), apart (>= 0.12 H) and at
-    some point not stretched out sideways (``out <= 0.36``: not a T-pose), for 0.45-3.3 s, then
+    some point not stretched out sideways for 0.1 s in a row (``out <= 0.36``: not a T-pose, nor
+    arms passing in from a T towards the chest), for 0.45-3.3 s, then
     both fall to ``up <= -0.22`` within 0.5 s of leaving that zone. The raise must be seen: after
     a reset (stream start, gap, glitch, long occlusion) the arms must first be seen below the
     raised zone (``up < -0.10``), so arms that are already up when the recogniser joins and are
@@ -152,7 +157,8 @@ class FireRingParams:
     max_raised_s: float = 3.3
     max_drop_s: float = 0.5
     min_separation: float = 0.12
-    max_out: float = 0.36  # both wrists must at some point be up with out <= this (not a T)
+    max_out: float = 0.36  # both wrists must at some point be up with out <= this (not a T) ...
+    upright_s: float = 0.1  # ... for this long in a row (not arms passing from a T towards the chest)
     max_swings: int = 4
     min_swing: float = 0.06
     rhythm_gap_s: float = 0.6
@@ -188,6 +194,7 @@ class FireRingDetector:
         self.min_sep = math.inf
         self.rhythmic = False
         self.upright = False
+        self.t_upright = math.inf  # since when the arms have been up and not stretched out (inf: not now)
         self.seen_low = seen or not self.p.raise_seen
         self.swings.reset()
 
@@ -214,11 +221,15 @@ class FireRingDetector:
                 self.state = "raised"
                 self.t_raised = _cross_time(self.t_prev, self.prev_lo, f.t, lo, p.raise_up)
                 self.rhythmic = 0.0 <= self.t_raised - self.t_cycle_end < p.rhythm_gap_s
-                self.peak, self.min_sep, self.upright = lo, math.inf, False
+                self.peak, self.min_sep, self.upright, self.t_upright = lo, math.inf, False, math.inf
                 self.swings.reset()
         if self.state == "raised":
             self.peak = max(self.peak, lo)
-            self.upright = self.upright or (lo >= p.raise_up and max(wl[0], wr[0]) <= p.max_out)
+            if lo >= p.raise_up and max(wl[0], wr[0]) <= p.max_out:
+                self.t_upright = min(self.t_upright, f.t)
+                self.upright = self.upright or f.t - self.t_upright >= p.upright_s - 1e-9
+            else:
+                self.t_upright = math.inf
             self.min_sep = min(self.min_sep, wl[0] + wr[0])
             self.swings.add(wl[0], wl[2], wr[0], wr[2])
             if lo < p.raise_up - p.hysteresis:
@@ -367,7 +378,21 @@ class TransformParams:
     chest_fwd_min: float = 0.0
     chest_fwd_max: float = 0.22
     chest_hold_s: float = 0.06
-    chest_still: float = 0.08  # each wrist coordinate moves at most this far during the chest hold
+    chest_still: float = 0.08  # each wrist's out and up move at most this far during the chest hold (not its
+    # forward offset: a single camera's depth of a hand on the chest jumps by 0.1-0.2 H between frames)
+    straight_max_deg: float = 25.0  # the bent path needs the arms seen straight in the T (mean bend) ...
+    fold_min_deg: float = 60.0  # ... and then folded this much on average ...
+    fold_out_min: float = 0.18  # ... while the wrists were still this far out on average (coming in) ...
+    fold_window_s: float = 0.6  # ... within this time of the last straight T frame
+    bent_min_deg: float | None = 40.0  # or: elbows bent this much on average (None: chest zone only)
+    bent_each_min_deg: float = 25.0  # ... each at least this much
+    bent_out_max: float = 0.20  # ... with both wrists inside this (not out to the sides)
+    bent_up_min: float = -0.33  # ... and between these heights (below the mouth: hands to the face are not on
+    bent_up_max: float = -0.10  # the chest)
+    bent_fwd_min: float = -0.08  # ... and not behind the back
+    bent_elbow_up_max: float = -0.05  # ... and the elbows down (not raised)
+    bent_hold_s: float = 0.12  # ... held this long, moving < chest_still (not arms passing through)
+    bend_hysteresis_deg: float = 5.0
     max_gap_s: float = 2.0
     max_swings: int = 3
     min_swing: float = 0.08
@@ -388,6 +413,9 @@ class TransformDetector:
         self.t_out = self.t_out_last = self.t_chest = self.t_seen = -math.inf
         self.out_margin = 0.0
         self.chest_at: tuple[float, ...] | None = None
+        self.folded = False
+        self.t_straight = -math.inf
+        self.chest_zone = True
         self.swings.reset()
 
     def _is_out(self, w: Vec3, slack: float) -> bool:
@@ -398,6 +426,32 @@ class TransformDetector:
         return bool(w[0] <= p.chest_out_max + slack and p.chest_up_min - slack <= w[1] <= p.chest_up_max + slack
                     and p.chest_fwd_min - slack <= w[2] <= p.chest_fwd_max + slack)
 
+    def _bent_in(self, w: Vec3, e: Vec3, slack: float) -> bool:
+        p = self.p
+        return bool(w[0] <= p.bent_out_max + slack and p.bent_up_min - slack <= w[1] <= p.bent_up_max + slack
+                    and w[2] >= p.bent_fwd_min - slack and e[1] <= p.bent_elbow_up_max + slack)
+
+    def _in_zone(self, f: FrameFeatures, slack: float) -> bool:
+        assert f.wrist_l is not None and f.wrist_r is not None
+        return self._on_chest(f.wrist_l, slack) and self._on_chest(f.wrist_r, slack)
+
+    def _hands_in(self, f: FrameFeatures, slack: float) -> bool:
+        """Both hands brought onto the chest: both wrists in the chest zone, or (the arms having folded
+        on their way in) both elbows bent with the wrists in front of the torso, below the face (what
+        a single camera sees of hands on the chest; ``slack`` widens every bound, by ``slack`` H and
+        ``bend_hysteresis_deg`` degrees)."""
+        p = self.p
+        wl, wr, el, er = f.wrist_l, f.wrist_r, f.elbow_l, f.elbow_r
+        assert wl is not None and wr is not None
+        if self._in_zone(f, slack):
+            return True
+        if p.bent_min_deg is None or not self.folded or el is None or er is None:
+            return False
+        deg = p.bend_hysteresis_deg if slack > 0.0 else 0.0
+        return bool(0.5 * (f.bend_l + f.bend_r) >= p.bent_min_deg - deg
+                    and min(f.bend_l, f.bend_r) >= p.bent_each_min_deg - deg
+                    and self._bent_in(wl, el, slack) and self._bent_in(wr, er, slack))
+
     def update(self, f: FrameFeatures) -> Candidate | None:
         p = self.p
         if not _seen(self, f.t, f.ok and f.arm_l_ok and f.arm_r_ok, p.occlusion_hold_s):
@@ -407,8 +461,11 @@ class TransformDetector:
         both_out = self._is_out(wl, 0.0) and self._is_out(wr, 0.0)
         still_out = self._is_out(wl, p.hysteresis) and self._is_out(wr, p.hysteresis)
         if self.state == "idle" and both_out:
-            self.state, self.t_out, self.out_margin = "out_pending", f.t, 0.0
+            self.state, self.t_out, self.out_margin, self.folded = "out_pending", f.t, 0.0, False
             self.swings.reset()
+        bend = 0.5 * (f.bend_l + f.bend_r)
+        if self.state in ("out_pending", "out") and still_out and bend <= p.straight_max_deg:
+            self.t_straight = f.t
         if self.state == "out_pending":
             if not still_out:
                 self.state = "idle"
@@ -419,21 +476,28 @@ class TransformDetector:
                     self.state, self.t_out_last = "out", f.t
         elif self.state == "out":
             self.swings.add(wl[0], wr[0])  # arms going in and out (waving) are not a transformation
+            self.folded = self.folded or (bend >= p.fold_min_deg and 0.5 * (wl[0] + wr[0]) >= p.fold_out_min
+                                          and f.t - self.t_straight <= p.fold_window_s)
             if still_out:
                 self.t_out_last = f.t
             elif f.t - self.t_out_last > p.max_gap_s or self.swings.count > p.max_swings:
                 log.debug("transform at %.2f s abandoned: %.2f s since arms out, %d swings", f.t,
                           f.t - self.t_out_last, self.swings.count)
                 self.reset()
-            elif self._on_chest(wl, 0.0) and self._on_chest(wr, 0.0):
+            elif self._hands_in(f, 0.0):
                 self.state, self.t_chest, self.chest_at = "chest", f.t, wl + wr
+                self.chest_zone = self._in_zone(f, 0.0)
         elif self.state == "chest":
             assert self.chest_at is not None
-            moved = max(abs(a - b) for a, b in zip(wl + wr, self.chest_at, strict=True))
-            if not (self._on_chest(wl, p.hysteresis) and self._on_chest(wr, p.hysteresis)) or moved > p.chest_still:
+            if not self.chest_zone and self._in_zone(f, 0.0):  # the hands reached the zone: its (shorter) hold
+                self.chest_zone, self.t_chest, self.chest_at = True, f.t, wl + wr
+            moved = max(abs(a - b) for k, (a, b) in enumerate(zip(wl + wr, self.chest_at, strict=True))
+                        if k % 3 != 2)  # out and up only: not the forward offsets (see chest_still)
+            hold = p.chest_hold_s if self.chest_zone else p.bent_hold_s
+            if not self._hands_in(f, p.hysteresis) or moved > p.chest_still:
                 log.debug("transform at %.2f s: hands left the chest (moved %.3f H)", f.t, moved)
                 self.state = "out" if f.t - self.t_out_last <= p.max_gap_s else "idle"
-            elif f.t - self.t_chest >= p.chest_hold_s:
+            elif f.t - self.t_chest >= hold:
                 gap = self.t_chest - self.t_out_last
                 cand = Candidate(self.t_out, self.t_chest,
                                  0.5 * clip01(self.out_margin / 0.12) + 0.5 * clip01(1.0 - gap / p.max_gap_s))

@@ -149,6 +149,10 @@ class FrameFeatures:
     wrist_l, wrist_r, elbow_l, elbow_r : (float, float, float)
         ``(outward, up, forward) / H`` of each joint relative to the shoulder mid-point
         (smoothed).
+    bend_l, bend_r : float
+        Elbow bend of each arm, degrees (0 = straight; the angle between the upper arm and the
+        forearm, smoothed). Read from the arm's own bones, so it does not depend on where the body
+        is or faces; NaN when not computed.
     arm_l_ok, arm_r_ok : bool
         Upper arm and forearm of that side visible and finite.
     crouch : float
@@ -174,6 +178,8 @@ class FrameFeatures:
     wrist_r: Vec3 | None = None
     elbow_l: Vec3 | None = None
     elbow_r: Vec3 | None = None
+    bend_l: float = math.nan
+    bend_r: float = math.nan
     arm_l_ok: bool = False
     arm_r_ok: bool = False
     crouch: float = math.nan
@@ -192,6 +198,18 @@ def _chain(j: list[list[float]], idx: tuple[int, ...]) -> float:
         pa, pb = j[a], j[b]
         total += math.sqrt((pb[0] - pa[0]) ** 2 + (pb[1] - pa[1]) ** 2 + (pb[2] - pa[2]) ** 2)
     return total
+
+
+def _bend_deg(j: list[list[float]], idx: tuple[int, ...]) -> float:
+    """Bend at the middle joint of the chain ``idx`` (shoulder, elbow, wrist), degrees: 0 when
+    straight, 90 for a right angle. 0 if a bone has no length."""
+    a, b, c = j[idx[0]], j[idx[1]], j[idx[2]]
+    ux, uy, uz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    vx, vy, vz = c[0] - b[0], c[1] - b[1], c[2] - b[2]
+    nn = math.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz))
+    if nn < 1e-12:
+        return 0.0
+    return math.degrees(math.acos(min(max((ux * vx + uy * vy + uz * vz) / nn, -1.0), 1.0)))
 
 
 def _ids(*names: str) -> tuple[int, ...]:
@@ -229,7 +247,7 @@ class FeatureExtractor:
             self.height = self._height_hint
             self.leg_len = None if self._height_hint is None else LEG_SHARE * self._height_hint
         self._t: float | None = None
-        self._arm: list[float] | None = None  # 12 smoothed arm features: lw, rw, le, re
+        self._arm: list[float] | None = None  # 14 smoothed arm features: lw, rw, le, re, bend l, bend r
         self._crouch: float = math.nan
         self._left: Vec2 | None = None
 
@@ -337,6 +355,7 @@ class FeatureExtractor:
         for k, sign in zip(_ARM_ROWS, (1.0, -1.0, 1.0, -1.0), strict=True):  # right arm: outward = -left
             px, py, pz = j[k][0] - mx, j[k][1] - my, j[k][2] - mz
             arm += [sign * (px * lx + pz * lz) / h, py / h, (-px * lz + pz * lx) / h]
+        arm += [_bend_deg(j, _ARM_L), _bend_deg(j, _ARM_R)]
         a = self._alpha(dt, cfg.smooth_tau_s)
         if self._arm is None:
             self._arm = arm
@@ -355,7 +374,7 @@ class FeatureExtractor:
         return FrameFeatures(
             t=t, ok=True, height=h, yaw=math.atan2(-lz, lx), left_xz=(lx, lz),
             wrist_l=(sm[0], sm[1], sm[2]), wrist_r=(sm[3], sm[4], sm[5]),
-            elbow_l=(sm[6], sm[7], sm[8]), elbow_r=(sm[9], sm[10], sm[11]),
+            elbow_l=(sm[6], sm[7], sm[8]), elbow_r=(sm[9], sm[10], sm[11]), bend_l=sm[12], bend_r=sm[13],
             arm_l_ok=l_arm, arm_r_ok=r_arm, crouch=crouch, legs_ok=feet,
             pelvis_xz=(pel[0], pel[2]),
             ankle_l_xz=(al[0], al[2]) if feet else None,

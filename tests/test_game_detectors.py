@@ -60,3 +60,16 @@ def test_strike_must_come_down_in_front() -> None:
                 + _frames(1.0, 1.5, -0.3, -0.3, right_only=True))
     assert len(_run(StrikeDetector(StrikeParams()), chop(0.15))) == 1
     assert _run(StrikeDetector(StrikeParams()), chop(-0.1)) == []
+
+
+def test_arms_passing_in_from_a_t_pose_are_not_raised() -> None:
+    """Arms raised to a T (too wide to count as raised), then brought in towards the chest: the one
+    frame in which they pass inside 0.36 H at shoulder height is not a raise, and the drop that
+    follows is not a fire ring (tracked `transform` x0.8 seed 51 was reported as one)."""
+    t_pose = _frames(0.3, 0.6, -0.3, 0.0, out=0.42) + _frames(0.6, 1.2, 0.0, 0.0, out=0.42)
+    passing = [FrameFeatures(t=1.2, ok=True, height=1.7, wrist_l=(0.33, -0.05, 0.1), wrist_r=(0.33, -0.05, 0.1),
+                             arm_l_ok=True, arm_r_ok=True)]
+    frames = _frames(0.0, 0.3, -0.3, -0.3) + t_pose + passing + _frames(1.2 + 1 / HZ, 1.8, -0.28, -0.28, out=0.15)
+    assert _run(FireRingDetector(FireRingParams()), frames) == []
+    assert len(_run(FireRingDetector(FireRingParams(upright_s=0.0)), frames)) == 1
+    assert len(_run(FireRingDetector(FireRingParams()), _throw(0.0))) == 1  # arms held up: still a throw

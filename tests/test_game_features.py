@@ -45,6 +45,21 @@ def test_wrist_heights_follow_the_arm() -> None:
     assert abs(t_pose.wrist_l[1]) < 0.02 and t_pose.wrist_l[0] > 0.4 and t_pose.wrist_r[0] > 0.4  # outward both
 
 
+def test_elbow_bend_is_the_angle_between_upper_arm_and_forearm() -> None:
+    """The elbow's flexion, whatever the arm's direction, the side and the facing (0 = straight)."""
+    body = body_from_measurements(1.70)
+    for bend, l_sh_z, yaw in ((0.0, 0.0, 0.0), (0.0, -80.0, 35.0), (30.0, -60.0, 0.0), (90.0, 0.0, -120.0),
+                              (120.0, -80.0, 35.0)):
+        p = standing_pose(body)
+        rot = p[3:].reshape(-1, 3)
+        rot[ROT_JOINTS.index("l_shoulder")] = (0, 0, math.radians(l_sh_z))
+        rot[ROT_JOINTS.index("l_elbow")] = (0, math.radians(-bend), 0)
+        rot[ROT_JOINTS.index("r_elbow")] = (0, math.radians(bend), 0)
+        rot[0] = (0, math.radians(yaw), 0)
+        f = FeatureExtractor().update(0.0, fk(p, body))
+        assert f.bend_l == pytest.approx(bend, abs=1.0) and f.bend_r == pytest.approx(bend, abs=1.0)
+
+
 def test_crouch_ratio_standing_is_one() -> None:
     f = FeatureExtractor().update(0.0, _pose(1.80))
     assert f.legs_ok and f.crouch == pytest.approx(1.0, abs=0.02)

@@ -4,6 +4,8 @@ reported low and wide (measured on tracked synthetic video, ``bench/bench_game_t
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from numpy.typing import NDArray
@@ -142,3 +144,98 @@ def test_side_step_needs_the_trailing_foot_to_follow() -> None:
     assert c.direction == "left"
     assert run(0.0, SideStepParams()) == []
     assert len(run(0.0, SideStepParams(trail_min=-1.0))) == 1
+
+
+Key = tuple[float, tuple[float, float, float], tuple[float, float, float], float]
+_T_POSE: tuple[tuple[float, float, float], tuple[float, float, float]] = ((0.43, 0.0, 0.03), (0.28, 0.0, 0.01))
+_FOLDING = ((0.26, -0.18, 0.05), (0.22, -0.12, -0.03))  # on the way in, the wrists still well out
+_TRACKED_CHEST = ((0.14, -0.29, 0.06), (0.15, -0.17, -0.05))  # hands on the chest as tracked: low, elbows bent
+
+
+def _arm_frames(keys: list[Key], end_s: float = 1.4) -> list[FrameFeatures]:
+    """Both arms alike, linearly between keys ``(t, wrist, elbow, bend_deg)`` (features in H)."""
+    kt = [k[0] for k in keys]
+    table = np.array([[*k[1], *k[2], k[3]] for k in keys])
+    out = []
+    for t in np.arange(0.0, end_s, 1.0 / HZ):
+        v = [float(np.interp(t, kt, table[:, i])) for i in range(7)]
+        wrist, elbow = (v[0], v[1], v[2]), (v[3], v[4], v[5])
+        out.append(FrameFeatures(t=float(t), ok=True, height=1.7, wrist_l=wrist, wrist_r=wrist, elbow_l=elbow,
+                                 elbow_r=elbow, bend_l=v[6], bend_r=v[6], arm_l_ok=True, arm_r_ok=True))
+    return out
+
+
+def _transform_keys(t_bend: float = 10.0, fold_bend: float = 70.0,
+                    chest: tuple[tuple[float, float, float], tuple[float, float, float]] = _TRACKED_CHEST,
+                    chest_bend: float = 60.0) -> list[Key]:
+    """Arms out to the sides (elbow bend ``t_bend``) for 0.5 s, folded on the way in, resting at ``chest``."""
+    return [(0.0, *_T_POSE, t_bend), (0.5, *_T_POSE, t_bend), (0.6, *_FOLDING, fold_bend),
+            (0.7, *chest, chest_bend)]
+
+
+def test_transform_from_bent_elbows_where_the_tracker_loses_the_hands() -> None:
+    """The tracker reports hands resting on the chest low and at the sides' width (0.14 H out, 0.29 H
+    down, like hanging hands; `round_win` seed 0, `transform` x0.8 seed 21) but with the elbows bent
+    50-90 degrees, and the arms fold while still out (a hanging arm is tracked bent < 35 degrees)."""
+    frames = _arm_frames(_transform_keys())
+    (c,) = _run(TransformDetector(TransformParams()), frames)
+    assert c.end_s == pytest.approx(0.7, abs=0.05)
+    assert _run(TransformDetector(TransformParams(bent_min_deg=None)), frames) == []  # the chest zone misses it
+
+
+def test_arms_lowered_straight_then_tracked_bent_are_not_a_transform() -> None:
+    """Arms lowered straight from the T (`neg_arms_out_down`), the tracker bending the hanging arms
+    only once they are down (seed 42), or a little on the way down (seeds 71-72): they did not fold
+    on the way in."""
+    keys: list[Key] = [(0.0, *_T_POSE, 10.0), (0.5, *_T_POSE, 10.0), (0.6, *_FOLDING, 25.0),
+                       (0.7, *_TRACKED_CHEST, 25.0), (0.8, *_TRACKED_CHEST, 70.0)]
+    assert _run(TransformDetector(TransformParams()), _arm_frames(keys)) == []
+    assert len(_run(TransformDetector(TransformParams(fold_out_min=0.0)), _arm_frames(keys))) == 1
+    # person 71: the straight arms are tracked folding to 52 degrees on the way down, hanging bent 42
+    keys = [(0.0, *_T_POSE, 10.0), (0.5, *_T_POSE, 10.0), (0.6, *_FOLDING, 52.0), (0.7, *_TRACKED_CHEST, 42.0)]
+    assert _run(TransformDetector(TransformParams()), _arm_frames(keys)) == []
+    assert len(_run(TransformDetector(TransformParams(fold_min_deg=50.0)), _arm_frames(keys))) == 1
+
+
+def test_bent_arms_out_then_lowered_are_not_a_transform() -> None:
+    """Both hands waved with the elbows bent 35 degrees at the sides, then lowered with bent elbows
+    (`wave-both-hands_masculine_001`): the arms were never straight in the T."""
+    frames = _arm_frames(_transform_keys(t_bend=35.0))
+    assert _run(TransformDetector(TransformParams()), frames) == []
+    assert len(_run(TransformDetector(TransformParams(straight_max_deg=40.0)), frames)) == 1
+
+
+def test_hands_to_the_face_are_not_on_the_chest() -> None:
+    """Arms out, then folded with the hands at the mouth (`call_normal_002`): the bent path stops
+    0.10 H below the shoulders."""
+    face = ((0.15, -0.03, 0.18), (0.22, -0.12, 0.08))
+    frames = _arm_frames(_transform_keys(chest=face, chest_bend=110.0))
+    assert _run(TransformDetector(TransformParams(chest_out_max=0.10)), frames) == []
+    assert len(_run(TransformDetector(TransformParams(chest_out_max=0.10, bent_up_max=0.0)), frames)) == 1
+
+
+def test_bent_hands_passing_through_do_not_rest_on_the_chest() -> None:
+    """Folded arms that keep going down (1 H/s) through the bent zone are not resting on the chest."""
+    low = ((0.14, -0.55, 0.06), (0.15, -0.30, -0.05))
+    keys = [*_transform_keys(chest=((0.14, -0.12, 0.06), (0.15, -0.10, -0.05))), (1.13, *low, 60.0)]
+    p = TransformParams(chest_out_max=0.10)  # keep the chest zone out of it
+    assert _run(TransformDetector(p), _arm_frames(keys)) == []
+    assert len(_run(TransformDetector(TransformParams(chest_out_max=0.10, bent_hold_s=0.0)), _arm_frames(keys))) == 1
+
+
+def test_hands_resting_on_the_chest_may_jump_in_depth() -> None:
+    """The tracker's depth of a hand on the chest jumps by 0.1-0.2 H between frames (`transform`
+    x1.25 seed 72: one wrist from 0.09 H in front of the shoulders to 0.08 H behind); the hands rest if
+    they stay put across and along the screen (out, up), not if they move there."""
+    def jitter(axis: int, amp: float) -> list[FrameFeatures]:
+        out = []
+        for k, f in enumerate(_transform_frames((0.10, -0.20, 0.04))):
+            if f.t > 0.8 and f.wrist_l is not None:
+                w = list(f.wrist_l)
+                w[axis] += amp * (k % 2)
+                f = replace(f, wrist_l=(w[0], w[1], w[2]))
+            out.append(f)
+        return out
+
+    assert len(_run(TransformDetector(TransformParams()), jitter(2, 0.15))) == 1  # depth: 0.04 <-> 0.19
+    assert _run(TransformDetector(TransformParams()), jitter(1, 0.09)) == []  # up and down: not resting

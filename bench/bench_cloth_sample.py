@@ -35,17 +35,20 @@ SAMPLE = [f"bandai/dataset-{name}.bvh" for name in (
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--baseline", required=True, help="results.json of a bench_cloth.py sweep")
+    ap.add_argument("--baseline", required=True,
+                    help="results.json of a bench_cloth.py sweep, or the --out of an earlier run of this script")
     ap.add_argument("--garment", default="skirt")
     ap.add_argument("--out", default=None, help="write the new results here (JSON)")
     args = ap.parse_args(argv)
-    base = {(r["recording"], r["garment"]): r for r in json.loads(Path(args.baseline).read_text())["sweep"]["results"]}
+    data = json.loads(Path(args.baseline).read_text())
+    rows = data if isinstance(data, list) else data["sweep"]["results"]
+    base = {(r["recording"], r.get("garment", args.garment)): r for r in rows}
     out: list[dict[str, Any]] = []
     counts = [0, 0, 0, 0]
     for rel in SAMPLE:
         r = simulate_motion(load_motion(mocap_root() / rel), args.garment)
         b = base[(rel, args.garment)]
-        out.append({**r, "recording": rel})
+        out.append({**r, "recording": rel, "garment": args.garment})
         counts[0] += b["max_strain"] <= 0.10
         counts[1] += r["max_strain"] <= 0.10
         counts[2] += b["max_penetration_mm"] <= 10.0

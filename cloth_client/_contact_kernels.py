@@ -13,9 +13,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "broad_phase",
-           "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration", "pinch_margin",
-           "round_cone", "round_cone_geo"]
+__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "PINCH_DEPTH",
+           "broad_phase", "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration",
+           "pinch_margin", "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -31,6 +31,11 @@ _inline = inline_kernel
 COLLISION_PASSES = 4
 #: Two contact normals with a cosine below this face each other: the cloth is in a crease.
 PINCH_COS = -0.3
+#: Deepest (metres) cloth pinched between two overlapping body parts may sit inside both: it is put
+#: half-way through their overlap (as if both soft surfaces gave way equally) instead of being
+#: squeezed out to one side. Half the 2 cm sunk-limb depth (``DriverConfig.ghost_depth``) less 1 mm,
+#: so cloth in any overlap the driver does not ghost stays within the 1 cm penetration target.
+PINCH_DEPTH = 0.009
 #: Columns of the per-capsule geometry table built by :func:`capsule_geometry`.
 _GEO_COLS = 13
 #: A particle closer than the clearance by less than this (metres) counts as on the surface, not in
@@ -201,8 +206,10 @@ def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin:
 
     If the two nearest capsules within ``margin`` face each other (normals more than
     :data:`PINCH_COS` apart), the cloth lies in the gap between two body parts: it keeps half the
-    gap (0 where they overlap) from each instead of ``margin``, so it fits in the gap rather than
-    being ploughed along by the part that closes it."""
+    gap from each instead of ``margin``, so it fits in the gap rather than being ploughed along by
+    the part that closes it. Where the two overlap (a forearm pressed on the hip) the "half gap" is
+    negative: the cloth sits half-way through the overlap, at most :data:`PINCH_DEPTH` inside each,
+    instead of being squeezed out to one side of the limb (which stretched the cloth across it)."""
     d1 = d2 = margin
     n1x = n1y = n1z = n2x = n2y = n2z = 0.0
     for c in range(geo.shape[0]):
@@ -216,7 +223,7 @@ def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin:
         elif d < d2:
             d2, n2x, n2y, n2z = d, nx, ny, nz
     if d2 < margin and n1x * n2x + n1y * n2y + n1z * n2z < PINCH_COS:
-        return min(margin, max(0.0, 0.5 * (d1 + d2)))
+        return min(margin, max(-PINCH_DEPTH, 0.5 * (d1 + d2)))
     return margin
 
 
@@ -324,7 +331,9 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
     particle pinched between body parts takes the velocity of the stoutest one it touches (cloth
     pressed against the hip by a hand stays with the hip instead of being torn along by the hand).
     A pinched particle in a crease narrower than twice the margin is resolved again from where it
-    was with the clearance of :func:`pinch_margin` (half the gap), so it fits in the gap."""
+    was with the clearance of :func:`pinch_margin` (half the gap, negative where the two overlap),
+    so it fits in the gap; it keeps the velocity of the stoutest part of the first resolve (the
+    second may touch only one of the two surfaces, whose friction would drag it along)."""
     geo = np.empty((a1.shape[0], _GEO_COLS))
     capsule_geometry(a1, b1, radii, margin, geo)
     centre = 0.5 * (a1 + b1)
@@ -343,10 +352,12 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
             continue
         m = pinch_margin(px, py, pz, geo, centre, margin)
         if m < margin:  # a crease: start again with the clearance the gap leaves
+            hx, hy, hz = v[i, 0], v[i, 1], v[i, 2]  # the stoutest touched part's velocity
             x[i, 0], x[i, 1], x[i, 2] = px, py, pz
             v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
             _resolve(x, v, i, m, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor,
                      contact, scratch, cand, xb, slack, xprev)
+            v[i, 0], v[i, 1], v[i, 2] = hx, hy, hz  # it is still in the crease, held by the stoutest part
 
 
 @_inline

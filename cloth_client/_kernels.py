@@ -22,6 +22,7 @@ from ._contact_kernels import (
     ALL_CAPSULES,
     BROAD_SLACK,
     COLLISION_PASSES,
+    PINCH_DEPTH,
     broad_phase,
     capsule_geometry,
     collide,
@@ -37,6 +38,7 @@ __all__ = [
     "ALL_CAPSULES",
     "BROAD_SLACK",
     "COLLISION_PASSES",
+    "PINCH_DEPTH",
     "broad_phase",
     "capsule_geometry",
     "collide",
@@ -347,14 +349,12 @@ def simulate_substeps(
                         v[i, d] = (x[i, d] - xp[i, d]) / dt
             collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact,
                     cand, xb, BROAD_SLACK, xp)
-        # final rounds: strain limiting, then collision (with final_rounds == 0: one contact-aware strain
-        # pass that slides contacts along their surfaces instead of into them, and no collision after it)
+        # final rounds: contact-aware strain limiting (contacts slide along the surfaces of the last
+        # collision instead of into them), then collision (with final_rounds == 0: no collision after it)
         for _r in range(max(final_rounds, 1)):
             for i in range(n):
                 for d in range(3):
                     f[i, d] = x[i, d]
-            if final_rounds > 0:
-                contact[:] = 0.0
             for _sweep in range(final_sweeps):
                 line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
                 line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)

@@ -10,7 +10,9 @@ One call of :func:`step` advances the cloth by ``dt`` (one received frame) in ``
    Gauss-Seidel sweep, then collision with the body capsules and the floor
    (:mod:`cloth_client.collision`), ``limit_iterations`` times; then ``final_rounds`` rounds of
    *[line solves, Gauss-Seidel sweep, collision]* (Provot's order: the strain limit, then the
-   body, has the last word), so every substep ends outside the body wherever it leaves room;
+   body, has the last word), so every substep ends outside the body wherever it leaves room; the
+   strain passes are contact-aware throughout (a particle touching the body only slides along the
+   surfaces the last collision pass found);
    velocities follow the corrected positions;
 5. a speed clamp as the last guard against a blow-up.
 
@@ -84,8 +86,8 @@ class ClothParams:
     final_sweeps : int
         Line-solve sweeps in each final round.
     final_rounds : int
-        Final rounds of *[line solves, Gauss-Seidel sweep, collision]*; 0 = one contact-aware strain
-        pass without collision after it (the previous scheme).
+        Final rounds of *[contact-aware line solves, Gauss-Seidel sweep, collision]*; 0 = one
+        contact-aware strain pass without collision after it (the previous scheme).
     tethers : bool
         Long-range attachments on.
     friction : float

@@ -8,14 +8,17 @@ body parts gets no friction (each would drag it its own way and tear it) but tak
 the stoutest part it touches (a hand pressing a skirt against the hip slides over it, the cloth
 stays with the hip). In a crease narrower than twice the margin (two nearest surfaces facing each
 other) the clearance shrinks to half the gap (:func:`pinch_margin_np`), so the cloth fits in the
-gap instead of being ploughed along by the part that closes it. Capsules
+gap instead of being ploughed along by the part that closes it; where the two overlap (no gap:
+a forearm pressed on the hip) it sits half-way through the overlap, at most :data:`PINCH_DEPTH`
+inside each, instead of being squeezed out to one side of the limb. Capsules
 are treated one after another per particle (Gauss-Seidel); a particle that was moved gets another
 pass (up to :data:`COLLISION_PASSES`, the floor included in each), which works cloth caught where
 two capsules overlap, or a capsule meets the floor, out to the outside of their union. The normals
 of up to two surfaces each particle touches are recorded for the contact-aware strain limiting
-that follows (cloth pinched in a crease may then only slide along it). The solver ends every
-substep with one more collision pass (after the final strain limiting), so the state it hands
-on is outside the body wherever the body leaves room.
+that follows, the final rounds included (cloth pinched in a crease may then only slide along it,
+and cloth resting on the body slides over it instead of being pulled into it and pushed back out
+with the stretch left in). The solver ends every substep with one more collision pass (after the
+final strain limiting), so the state it hands on is outside the body wherever the body leaves room.
 
 A particle found inside a capsule past its axis from where it was at the start of the substep
 (carried along with the capsule) is put back on that side instead of being projected to the
@@ -33,7 +36,8 @@ from numpy.typing import NDArray
 
 from .collision import round_cone_np
 
-__all__ = ["COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "broad_phase_np", "collide_np", "pinch_margin_np"]
+__all__ = ["COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "PINCH_DEPTH", "broad_phase_np", "collide_np",
+           "pinch_margin_np"]
 
 F64 = NDArray[np.float64]
 _TINY = 1e-12
@@ -43,6 +47,8 @@ _TINY = 1e-12
 COLLISION_PASSES = 4
 #: Two contact normals with a cosine below this face each other: the cloth is in a crease.
 PINCH_COS = -0.3
+#: Deepest (metres) pinched cloth may sit inside both of two overlapping facing body parts.
+PINCH_DEPTH = 0.009
 #: A particle closer than the clearance by less than this (metres) is on the surface, not in contact.
 HIT_TOLERANCE = 1e-9
 
@@ -115,12 +121,13 @@ def collide_np(
     m[pinched] = pinch_margin_np(x0[pinched], a1, b1, radii, margin)
     again = pinched & (m < margin)  # a crease: start again with the clearance the gap leaves
     if again.any():
+        held = v[again]  # the stoutest touched part's velocity (set by the first resolve)
         x[again], v[again] = x0[again], v0[again]
         sub = np.zeros((int(again.sum()), 6))
         xs, vs = x[again], v[again]
         _resolve_np(xs, vs, np.ones(len(xs), bool), a0, b0, a1, b1, radii, m[again], margin, friction, dt, floor, sub,
                     xp[again])
-        x[again], v[again], contact[again] = xs, vs, sub
+        x[again], v[again], contact[again] = xs, held, sub
 
 
 def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64, m: F64,
@@ -213,7 +220,8 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
     """Clearance ``(N,)`` each particle can keep from the body (reference of ``K.pinch_margin``).
 
     ``margin``, except in a crease: when the two nearest capsules within ``margin`` have normals
-    facing each other (cosine below ``PINCH_COS``), half the gap between them (0 where they overlap).
+    facing each other (cosine below ``PINCH_COS``), half the gap between them; where they overlap
+    that is negative (half-way through the overlap), down to ``-PINCH_DEPTH``.
     """
     if len(a) < 2:
         return np.full(len(x), margin)
@@ -223,5 +231,5 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
     d1, d2 = d[rows, order[:, 0]], d[rows, order[:, 1]]
     cos = np.einsum("ij,ij->i", nrm[rows, order[:, 0]], nrm[rows, order[:, 1]])
     crease = (d2 < margin) & (cos < PINCH_COS)
-    out: F64 = np.where(crease, np.clip(0.5 * (d1 + d2), 0.0, margin), margin)
+    out: F64 = np.where(crease, np.clip(0.5 * (d1 + d2), -PINCH_DEPTH, margin), margin)
     return out

@@ -190,9 +190,7 @@ def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, 
             v[free] = (x[free] - xp[free]) / dt
             collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact, xp)
         for _ in range(max(p.final_rounds, 1)):
-            before = x.copy()
-            if p.final_rounds > 0:
-                contact[:] = 0.0
+            before = x.copy()  # contact-aware: cloth on the body slides over it, not into it
             _line_pass(x, model, inv_mass, contact, p.final_sweeps)
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
                             1 if p.final_sweeps > 0 else 0, contact)

@@ -10,7 +10,7 @@ from cloth_client import _kernels as K
 from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
-from cloth_client.contact import broad_phase_np, collide_np, pinch_margin_np
+from cloth_client.contact import PINCH_DEPTH, broad_phase_np, collide_np, pinch_margin_np
 from cloth_client.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
@@ -112,11 +112,13 @@ def test_floor_and_pinch_between_two_surfaces(backend: str) -> None:
 def test_cloth_in_a_narrow_gap_fits_and_stays_with_the_stouter_part(backend: str) -> None:
     """Two parallel capsules 8 mm apart (a hand against the hip) with a 6 mm margin: the particle
     between them settles half-way (4 mm from each, outside both) instead of being pushed into one.
-    Where they overlap, cloth caught in both takes the velocity of the thicker capsule, not that of
-    the thin one sliding over it."""
+    Where they overlap by 5 mm (a forearm pressed on the hip) it settles half-way through the
+    overlap, 2.5 mm inside each (the gap's middle, y = 0.0975), instead of being squeezed out to
+    one side; in both cases it takes the velocity of the thicker capsule (at rest), not that of the
+    thin one sliding over it."""
     margin, dt = 0.006, 0.01
     radii = np.array([[0.10, 0.10], [0.03, 0.03]])
-    for top, start, gap_d in ((0.138, 0.103, 0.004), (0.125, 0.102, None)):
+    for top, start, gap_d in ((0.138, 0.103, 0.004), (0.125, 0.102, -0.0025)):
         a1 = np.array([[-0.3, 0.0, 0.0], [-0.3, top, 0.0]])
         b1 = np.array([[0.3, 0.0, 0.0], [0.3, top, 0.0]])
         a0 = a1 - [[0.0, 0.0, 0.0], [0.02, 0.0, 0.0]]  # the thin capsule slides along +X at 2 m/s
@@ -125,11 +127,9 @@ def test_cloth_in_a_narrow_gap_fits_and_stays_with_the_stouter_part(backend: str
         v = np.array([[1.0, 0.5, 0.0]])
         _collide(backend, x, v, a0, b0, a1, b1, radii, margin, 0.3, dt)
         d, _, _ = round_cone_np(x, a1, b1, radii[:, 0], radii[:, 1])
-        if gap_d is not None:
-            np.testing.assert_allclose(d[0], [gap_d, gap_d], atol=1e-9)
-        else:  # 5 mm overlap: out of the thick one, on the boundary of the union
-            assert d[0].max() >= -1e-9 and d[0].min() > -0.006
-            np.testing.assert_allclose(v[0], 0.0, atol=1e-12)
+        np.testing.assert_allclose(d[0], [gap_d, gap_d], atol=1e-9)
+        np.testing.assert_allclose(x[0], [0.05, gap_d + 0.10, 0.0], atol=1e-9)
+        np.testing.assert_allclose(v[0], 0.0, atol=1e-12)
     # the numba and numpy clearances agree, round a posed body and in the gap above
     body = default_body()
     keys = pose_keys(body, standing_pose(body)[None].repeat(2, 0))
@@ -143,6 +143,43 @@ def test_cloth_in_a_narrow_gap_fits_and_stays_with_the_stouter_part(backend: str
         ref = pinch_margin_np(pts, a, b, r, margin)
         np.testing.assert_allclose(got, ref, atol=1e-12)
     assert (ref < margin).sum() > 100 and (ref == margin).sum() > 100
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_pinch_clearance_is_half_the_gap_down_to_the_pinch_depth(backend: str) -> None:
+    """Clearance in a crease between a thick (r = 10 cm, axis y = 0) and a thin (r = 3 cm, axis
+    y = top) parallel capsule, hand-computed from the two surface distances d1 = y - 0.10 and
+    d2 = top - y - 0.03 of a particle at height y: (d1 + d2) / 2, at most the margin and at least
+    -PINCH_DEPTH (a 20 mm overlap leaves no room at 10 mm inside each); the full margin outside a
+    crease (the thin capsule beside the thick one: normals 90 degrees apart)."""
+    margin = 0.006
+    assert K.PINCH_DEPTH == PINCH_DEPTH and PINCH_DEPTH < 0.01  # numba = numpy, within the 1 cm target
+    radii = np.array([[0.10, 0.10], [0.03, 0.03]])
+    cases = (  # (top, y, expected clearance)
+        (0.138, 0.103, 0.004),  # 8 mm gap: d1 = 3, d2 = 5 mm
+        (0.125, 0.102, -0.0025),  # 5 mm overlap: d1 = 2, d2 = -7 mm
+        (0.110, 0.095, -K.PINCH_DEPTH),  # 20 mm overlap: d1 = -5, d2 = -15 mm, mean -10 mm
+        (0.150, 0.100, margin),  # d2 = 20 mm: only one surface within the margin
+    )
+    for top, y, expected in cases:
+        a = np.array([[-0.3, 0.0, 0.0], [-0.3, top, 0.0]])
+        b = np.array([[0.3, 0.0, 0.0], [0.3, top, 0.0]])
+        p = np.array([[0.05, y, 0.0]])
+        if backend == "numba":
+            geo = np.empty((2, 13))
+            K.capsule_geometry(a, b, radii, margin, geo)
+            got = K.pinch_margin(*p[0], geo, 0.5 * (a + b), margin)
+        else:
+            got = float(pinch_margin_np(p, a, b, radii, margin)[0])
+        assert got == pytest.approx(expected, abs=1e-12)
+    # the thin capsule sunk sideways into the thick one (axis at z = 0.1): near where the surfaces
+    # cross, both are within the margin but their normals are ~80 degrees apart: no crease
+    a = np.array([[-0.3, 0.0, 0.0], [-0.3, 0.0, 0.1]])
+    b = a + np.array([0.6, 0.0, 0.0])
+    p = np.array([[0.0, 0.033, 0.097]])
+    d, nrm, _ = round_cone_np(p, a, b, radii[:, 0], radii[:, 1])
+    assert np.all(d[0] < margin) and nrm[0, 0] @ nrm[0, 1] > -0.3
+    assert pinch_margin_np(p, a, b, radii, margin)[0] == margin
 
 
 def test_penetration_depth_kernel_matches_numpy(rng: np.random.Generator) -> None:

@@ -90,7 +90,8 @@ def pyramid_speedup(loaded: Any, n_frames: int = 60) -> dict[str, float]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--takes", type=int, default=10, help="held-out takes to evaluate, spread over the list (51: all of them)")
+    ap.add_argument("--takes", type=int, default=10,
+                    help="held-out takes to evaluate, spread over the list (51: all of them)")
     ap.add_argument("--frames", type=int, default=150, help="frames per take")
     ap.add_argument("--seed", type=int, default=7, help="synthetic scene seed (the subject; 7: a woman 1.64 m tall)")
     ap.add_argument("--configs", help="comma-separated rows to run (default: all; e.g. xor_dm2 for the main row "

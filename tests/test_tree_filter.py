@@ -65,8 +65,10 @@ def test_max_heading_keeps_the_prior_on_leaves_facing_the_camera(small_db) -> No
     assert predict_leaves(st, db, FilterParams())[far].sum() > 0  # without the limit they keep mass
 
 
-def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("screen", [(), (2, 2)])
+def test_tracks_a_take_of_another_body(small_db, screen: tuple[int, ...]) -> None:  # type: ignore[no-untyped-def]
     db, body, motions, _, _ = small_db
+    assert db.tree.level_sizes[0] > 2 * 2  # the screened search is exercised
     subject = body_model("mLA").body
     cam = default_camera()
     m = motions[0]
@@ -77,7 +79,7 @@ def test_tracks_a_take_of_another_body(small_db) -> None:  # type: ignore[no-unt
     errs, errs_mean = [], []
     for f in range(0, len(poses), 2):
         mask = render_silhouette(truth[f], subject.capsule_radii, cam)
-        st, est = step(st, db, preprocess(mask), FilterParams(), observed_placement(mask, cam))
+        st, est = step(st, db, preprocess(mask), FilterParams(screen=screen), observed_placement(mask, cam))
         pose = est.pose_map.copy()
         pose[:3] = placement_to_root(est.placement, pose[:3], cam)
         j = fk(pose, body)
@@ -118,6 +120,36 @@ def test_a_leap_is_not_taken_for_a_step_back(small_db) -> None:  # type: ignore[
             assert max(depth_err) < tol and max(height_err) < 0.1
         else:  # the feet line alone: the failure this hypothesis removes
             assert max(depth_err) > 0.4
+
+
+def test_screened_grid_evaluates_the_grid_only_for_the_best_nodes(rng: np.random.Generator) -> None:
+    from tracker_service.tree_filter import _offsets, _screened
+
+    n, n_h = 40, 2
+    offs = _offsets(8.0, 0.05, 3, 3)  # middle cell (index 4) is the zero offset
+    assert np.all(offs[4] == 0)
+    table = rng.uniform(0.0, 10.0, (n, n_h, len(offs)))
+    table[7, :, 4] = -5.0  # the best node by likelihood
+    prior = rng.uniform(0.1, 1.0, n)
+    prior[11] = 1e6  # the best node by prior
+    calls: list[int] = []
+
+    def neg_log(sel, offsets):  # type: ignore[no-untyped-def]
+        rows = np.arange(n)[sel]
+        cols = [int(np.flatnonzero(np.all(offs == o, axis=1))[0]) for o in offsets]
+        t = table[rows][:, :, cols].reshape(len(rows), -1)
+        places = np.broadcast_to(np.asarray(cols, float)[None, None, :, None], (len(rows), n_h, len(cols), 3))
+        calls.append(t.size)
+        return t, places.reshape(len(rows), -1, 3).copy(), t.size
+
+    cost, places, evals = _screened(neg_log, offs, prior, n_best=3)
+    assert cost.shape == (n, n_h * 9) and places.shape == (n, n_h * 9, 3) and evals == sum(calls)
+    full = np.isfinite(cost).all(axis=1)
+    assert full[7] and full[11] and 3 <= full.sum() <= 6  # the best by each ranking got the whole grid
+    np.testing.assert_array_equal(cost[full], table[full].reshape(full.sum(), -1))
+    centre = cost[~full].reshape(-1, n_h, 9)
+    np.testing.assert_array_equal(centre[:, :, 4], table[~full][:, :, 4])  # the rest: centre cell only
+    assert np.isinf(np.delete(centre, 4, axis=2)).all()
 
 
 def test_tempered_weights_hedge_between_modes() -> None:

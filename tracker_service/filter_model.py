@@ -111,6 +111,11 @@ class FilterParams:
     grid : tuple of (int, int)
         Placement search grid (shift steps x scale steps) per level, around each node's parent's
         best placement.
+    screen : tuple of int
+        Per level, the placement grid in two passes when > 0: every node at its predicted
+        placement first, then the full grid only for the ``screen[level]`` best nodes by posterior
+        and as many best by likelihood (the grid's other cells matter only for nodes that would
+        rank there). 0 (or a level past the tuple) evaluates every node on the full grid.
     refine : int
         Best leaves whose placement is refined at full resolution.
     placement_sigma_px, placement_sigma_scale : float
@@ -175,8 +180,9 @@ class FilterParams:
     sigma: tuple[float, ...] = (0.01, 0.01, 0.01)
     keep_rel: float = 2e-3
     max_keep: tuple[int, ...] = (16, 48)
-    keep_likelihood: tuple[int, ...] = (16, 32)
+    keep_likelihood: tuple[int, ...] = (48, 96)
     grid: tuple[tuple[int, int], ...] = ((3, 3), (3, 1), (1, 1))
+    screen: tuple[int, ...] = (48, 48)
     refine: int = 6
     placement_sigma_px: float = 6.0
     placement_sigma_scale: float = 0.03

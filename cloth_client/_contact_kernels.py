@@ -14,8 +14,8 @@ from numba import njit
 from numpy.typing import NDArray
 
 __all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
-           "PINCH_DEPTH", "broad_phase", "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration",
-           "pinch_margin", "round_cone", "round_cone_geo"]
+           "PINCH_DEPTH", "broad_phase", "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel",
+           "penetration", "pinch_margin", "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math

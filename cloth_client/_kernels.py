@@ -39,11 +39,11 @@ from ._contact_kernels import (
 __all__ = [
     "ALL_CAPSULES",
     "BROAD_SLACK",
-    "SLIDE_FLOOR",
     "COLLISION_PASSES",
     "CREASE_COS",
     "PINCH_COS",
     "PINCH_DEPTH",
+    "SLIDE_FLOOR",
     "broad_phase",
     "capsule_geometry",
     "collide",
@@ -69,7 +69,7 @@ _inline = inline_kernel
 #: spring's diagonal entry is ``sum w (u . P u)`` (``P``: onto the tangent space of the surfaces a
 #: particle touches) instead of ``sum w``, floored at this share of ``sum w`` so a spring whose both
 #: ends are held against the body (nearly along both normals) is not corrected by an unbounded slide
-#: (a move of at most ``1 / sqrt(SLIDE_FLOOR)`` = 2 times the unconstrained one; 0.1 gave the same
+#: (a move of at most about ``1 / sqrt(SLIDE_FLOOR)`` = 2 times the unconstrained one; 0.1 gave the same
 #: 26-take sample but one frame at 1,060 % on ``cmu/01_01``, 313 % with 0.25).
 SLIDE_FLOOR = 0.25
 

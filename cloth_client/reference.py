@@ -139,8 +139,8 @@ def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: flo
     act = ((length > hi) | (length < lo)) & (length > 1e-12) & (w[:, :-1] + w[:, 1:] > 0.0)
     n = np.where(act[..., None], d / np.where(act, length, 1.0)[..., None], 0.0)
     c = contact[lines]  # (L, m, 6): J W P J^T, each end moving in the tangent space of what it touches
-    b = np.where(act, np.maximum(w[:, :-1] * tangent_dot_np(c[:, :-1], n, n) + w[:, 1:] * tangent_dot_np(c[:, 1:], n, n),
-                                 SLIDE_FLOOR * (w[:, :-1] + w[:, 1:])), 1.0)
+    diag = w[:, :-1] * tangent_dot_np(c[:, :-1], n, n) + w[:, 1:] * tangent_dot_np(c[:, 1:], n, n)
+    b = np.where(act, np.maximum(diag, SLIDE_FLOOR * (w[:, :-1] + w[:, 1:])), 1.0)
     rhs = np.where(act, -(length - np.where(length > hi, hi, lo)), 0.0)
     both = act[:, :-1] & act[:, 1:]
     off = np.where(both, -w[:, 1:-1] * tangent_dot_np(c[:, 1:-1], n[:, :-1], n[:, 1:]), 0.0)  # (L, m-2)

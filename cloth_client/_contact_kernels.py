@@ -13,9 +13,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "PINCH_DEPTH",
-           "broad_phase", "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel", "penetration",
-           "pinch_margin", "round_cone", "round_cone_geo"]
+__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
+           "PINCH_DEPTH", "broad_phase", "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel",
+           "penetration", "pinch_margin", "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -31,6 +31,10 @@ _inline = inline_kernel
 COLLISION_PASSES = 4
 #: Two contact normals with a cosine below this face each other: the cloth is in a crease.
 PINCH_COS = -0.3
+#: Two contact normals with a cosine below this (more than 90 degrees apart) but not below
+#: :data:`PINCH_COS` are the sides of a V (next to where a forearm lies on the hip): the clearance
+#: is half the gap there too, but never negative (the cloth may reach the surfaces, not go into them).
+CREASE_COS = 0.0
 #: Deepest (metres) cloth pinched between two overlapping body parts may sit inside both: it is put
 #: half-way through their overlap (as if both soft surfaces gave way equally) instead of being
 #: squeezed out to one side. Half the 2 cm sunk-limb depth (``DriverConfig.ghost_depth``) less 1 mm,
@@ -209,7 +213,10 @@ def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin:
     gap from each instead of ``margin``, so it fits in the gap rather than being ploughed along by
     the part that closes it. Where the two overlap (a forearm pressed on the hip) the "half gap" is
     negative: the cloth sits half-way through the overlap, at most :data:`PINCH_DEPTH` inside each,
-    instead of being squeezed out to one side of the limb (which stretched the cloth across it)."""
+    instead of being squeezed out to one side of the limb (which stretched the cloth across it).
+    In a wider V (normals between 90 degrees, :data:`CREASE_COS`, and :data:`PINCH_COS` apart: the
+    sides of such an overlap) it keeps half the gap too, but at least 0, so the cloth next to the
+    part held in the overlap is not pushed out of the V to the full margin."""
     d1 = d2 = margin
     n1x = n1y = n1z = n2x = n2y = n2z = 0.0
     for c in range(geo.shape[0]):
@@ -222,8 +229,9 @@ def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin:
             d1, n1x, n1y, n1z = d, nx, ny, nz
         elif d < d2:
             d2, n2x, n2y, n2z = d, nx, ny, nz
-    if d2 < margin and n1x * n2x + n1y * n2y + n1z * n2z < PINCH_COS:
-        return min(margin, max(-PINCH_DEPTH, 0.5 * (d1 + d2)))
+    cos = n1x * n2x + n1y * n2y + n1z * n2z
+    if d2 < margin and cos < CREASE_COS:
+        return min(margin, max(-PINCH_DEPTH if cos < PINCH_COS else 0.0, 0.5 * (d1 + d2)))
     return margin
 
 

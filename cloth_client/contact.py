@@ -36,8 +36,8 @@ from numpy.typing import NDArray
 
 from .collision import round_cone_np
 
-__all__ = ["COLLISION_PASSES", "HIT_TOLERANCE", "PINCH_COS", "PINCH_DEPTH", "broad_phase_np", "collide_np",
-           "pinch_margin_np"]
+__all__ = ["COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS", "PINCH_DEPTH", "broad_phase_np",
+           "collide_np", "pinch_margin_np"]
 
 F64 = NDArray[np.float64]
 _TINY = 1e-12
@@ -47,6 +47,9 @@ _TINY = 1e-12
 COLLISION_PASSES = 4
 #: Two contact normals with a cosine below this face each other: the cloth is in a crease.
 PINCH_COS = -0.3
+#: Two contact normals with a cosine below this (more than 90 degrees apart) but not below
+#: :data:`PINCH_COS` are the sides of a V: the clearance is half the gap there too, but not negative.
+CREASE_COS = 0.0
 #: Deepest (metres) pinched cloth may sit inside both of two overlapping facing body parts.
 PINCH_DEPTH = 0.009
 #: A particle closer than the clearance by less than this (metres) is on the surface, not in contact.
@@ -221,7 +224,8 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
 
     ``margin``, except in a crease: when the two nearest capsules within ``margin`` have normals
     facing each other (cosine below ``PINCH_COS``), half the gap between them; where they overlap
-    that is negative (half-way through the overlap), down to ``-PINCH_DEPTH``.
+    that is negative (half-way through the overlap), down to ``-PINCH_DEPTH``; in a wider V (cosine
+    below ``CREASE_COS`` but not ``PINCH_COS``) half the gap too, but not below 0.
     """
     if len(a) < 2:
         return np.full(len(x), margin)
@@ -230,6 +234,7 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
     rows = np.arange(len(x))
     d1, d2 = d[rows, order[:, 0]], d[rows, order[:, 1]]
     cos = np.einsum("ij,ij->i", nrm[rows, order[:, 0]], nrm[rows, order[:, 1]])
-    crease = (d2 < margin) & (cos < PINCH_COS)
-    out: F64 = np.where(crease, np.clip(0.5 * (d1 + d2), -PINCH_DEPTH, margin), margin)
+    crease = (d2 < margin) & (cos < CREASE_COS)
+    floor = np.where(cos < PINCH_COS, -PINCH_DEPTH, 0.0)
+    out: F64 = np.where(crease, np.minimum(np.maximum(0.5 * (d1 + d2), floor), margin), margin)
     return out

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from ._kernels import SLIDE_FLOOR
 from .collision import CapsuleTrack, interpolate_keys
 from .contact import collide_np
 
@@ -39,7 +40,7 @@ if TYPE_CHECKING:
     from .cloth import ClothModel
 
 __all__ = ["drag_forces_np", "line_limit_np", "long_range_attach_np", "move_np", "spring_forces_np",
-           "strain_limit_np", "substeps_np"]
+           "strain_limit_np", "substeps_np", "tangent_dot_np", "tangent_np"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -69,6 +70,36 @@ def move_np(x: F64, idx: I64, delta: F64, contact: F64) -> None:
     x[idx] += d
 
 
+def tangent_dot_np(c: F64, a: F64, b: F64) -> F64:
+    """``a . P b`` (last axis), ``P`` the orthogonal projector onto the tangent space of the (up to
+    two) contact normals ``c (..., 6)`` (reference of ``K._tangent_dot``)."""
+    r = np.einsum("...j,...j->...", a, b)
+    n1, n2 = c[..., 0:3], c[..., 3:6]
+    has1 = np.einsum("...j,...j->...", n1, n1) > 0.5
+    r = np.where(has1, r - np.einsum("...j,...j->...", a, n1) * np.einsum("...j,...j->...", b, n1), r)
+    k = np.einsum("...j,...j->...", n2, n1)
+    n2 = np.where(has1[..., None], n2 - k[..., None] * n1, n2)
+    l2 = np.einsum("...j,...j->...", n2, n2)
+    ok = l2 > 1e-12
+    n2 = n2 / np.sqrt(np.where(ok, l2, 1.0))[..., None]
+    out: F64 = np.where(ok, r - np.einsum("...j,...j->...", a, n2) * np.einsum("...j,...j->...", b, n2), r)
+    return out
+
+
+def tangent_np(c: F64, m: F64) -> F64:
+    """``P m`` (last axis) for the projector of :func:`tangent_dot_np` (reference of ``K._tangent``)."""
+    n1, n2 = c[..., 0:3], c[..., 3:6]
+    has1 = np.einsum("...j,...j->...", n1, n1) > 0.5
+    m = np.where(has1[..., None], m - np.einsum("...j,...j->...", m, n1)[..., None] * n1, m)
+    k = np.einsum("...j,...j->...", n2, n1)
+    n2 = np.where(has1[..., None], n2 - k[..., None] * n1, n2)
+    l2 = np.einsum("...j,...j->...", n2, n2)
+    ok = l2 > 1e-12
+    n2 = n2 / np.sqrt(np.where(ok, l2, 1.0))[..., None]
+    out: F64 = np.where(ok[..., None], m - np.einsum("...j,...j->...", m, n2)[..., None] * n2, m)
+    return out
+
+
 def strain_limit_np(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, batches: I64, iterations: int,
                     contact: F64) -> None:
     """Batch-vectorised symmetric Gauss-Seidel strain limiting, in place (reference of
@@ -96,8 +127,9 @@ def strain_limit_np(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, batch
 def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float, max_compression: float,
                   contact: F64) -> None:
     """Strain limiting solved along whole grid lines, in place (reference of ``K.line_limit``): the
-    tridiagonal systems of all lines are eliminated together (a loop over the position along the
-    line, vectorised over lines)."""
+    tridiagonal systems ``J W P J^T lambda = -C`` (``P``: each particle's moves kept in the tangent
+    space of the surfaces it touches) of all lines are eliminated together (a loop over the position
+    along the line, vectorised over lines)."""
     if lines.shape[0] == 0:
         return
     d = x[lines[:, 1:]] - x[lines[:, :-1]]  # (L, m-1, 3)
@@ -106,10 +138,12 @@ def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: flo
     w = inv_mass[lines]
     act = ((length > hi) | (length < lo)) & (length > 1e-12) & (w[:, :-1] + w[:, 1:] > 0.0)
     n = np.where(act[..., None], d / np.where(act, length, 1.0)[..., None], 0.0)
-    b = np.where(act, w[:, :-1] + w[:, 1:], 1.0)
+    c = contact[lines]  # (L, m, 6): J W P J^T, each end moving in the tangent space of what it touches
+    diag = w[:, :-1] * tangent_dot_np(c[:, :-1], n, n) + w[:, 1:] * tangent_dot_np(c[:, 1:], n, n)
+    b = np.where(act, np.maximum(diag, SLIDE_FLOOR * (w[:, :-1] + w[:, 1:])), 1.0)
     rhs = np.where(act, -(length - np.where(length > hi, hi, lo)), 0.0)
     both = act[:, :-1] & act[:, 1:]
-    off = np.where(both, -w[:, 1:-1] * np.einsum("lkj,lkj->lk", n[:, :-1], n[:, 1:]), 0.0)  # (L, m-2)
+    off = np.where(both, -w[:, 1:-1] * tangent_dot_np(c[:, 1:-1], n[:, :-1], n[:, 1:]), 0.0)  # (L, m-2)
     cp, dp = np.zeros_like(b), np.zeros_like(b)
     for k in range(b.shape[1]):
         denom = b[:, k] - (off[:, k - 1] * cp[:, k - 1] if k > 0 else 0.0)
@@ -124,6 +158,7 @@ def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: flo
     move = np.zeros((*lines.shape, 3))
     move[:, 1:] += lam[..., None] * n
     move[:, :-1] -= lam[..., None] * n
+    move = tangent_np(c, move)  # the move the system was solved for
     move_np(x, lines.ravel(), (w[..., None] * move).reshape(-1, 3), contact)
 
 

@@ -10,7 +10,7 @@ from cloth_client import _kernels as K
 from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
-from cloth_client.contact import PINCH_DEPTH, broad_phase_np, collide_np, pinch_margin_np
+from cloth_client.contact import PINCH_COS, PINCH_DEPTH, broad_phase_np, collide_np, pinch_margin_np
 from cloth_client.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
@@ -173,13 +173,35 @@ def test_pinch_clearance_is_half_the_gap_down_to_the_pinch_depth(backend: str) -
             got = float(pinch_margin_np(p, a, b, radii, margin)[0])
         assert got == pytest.approx(expected, abs=1e-12)
     # the thin capsule sunk sideways into the thick one (axis at z = 0.1): near where the surfaces
-    # cross, both are within the margin but their normals are ~80 degrees apart: no crease
+    # cross, both are within the margin but their normals are 76 degrees apart: no crease (a crease
+    # is two normals more than 90 degrees apart)
     a = np.array([[-0.3, 0.0, 0.0], [-0.3, 0.0, 0.1]])
     b = a + np.array([0.6, 0.0, 0.0])
     p = np.array([[0.0, 0.033, 0.097]])
     d, nrm, _ = round_cone_np(p, a, b, radii[:, 0], radii[:, 1])
-    assert np.all(d[0] < margin) and nrm[0, 0] @ nrm[0, 1] > -0.3
+    assert np.all(d[0] < margin) and nrm[0, 0] @ nrm[0, 1] > PINCH_COS
     assert pinch_margin_np(p, a, b, radii, margin)[0] == margin
+    # a V: the thin capsule beside the thick one, their surfaces crossing at 100 degrees (normals
+    # cos -0.17); a particle 2 mm outside the crossing gets half the gap, one 2 mm inside gets 0
+    # (never a clearance inside the body in a V, only in a crease beyond PINCH_COS)
+    dist = np.sqrt(0.10**2 + 0.03**2 + 2 * 0.10 * 0.03 * 0.17)
+    a = np.array([[-0.3, 0.0, 0.0], [-0.3, dist, 0.0]])
+    b = a + np.array([0.6, 0.0, 0.0])
+    yc = (0.10**2 - 0.03**2 + dist**2) / (2 * dist)
+    cross = np.array([0.0, yc, np.sqrt(0.10**2 - yc**2)])
+    bis = cross / 0.10 + (cross - (a[1] + b[1]) / 2) / 0.03
+    bis /= np.linalg.norm(bis)
+    for sign, floor in ((1.0, None), (-1.0, 0.0)):
+        p = (cross + sign * 0.002 * bis)[None]
+        d, nrm, _ = round_cone_np(p, a, b, radii[:, 0], radii[:, 1])
+        cos = nrm[0, 0] @ nrm[0, 1]
+        assert PINCH_COS < cos < K.CREASE_COS and np.all(d[0] < margin), (cos, d)
+        expected = 0.5 * (d[0, 0] + d[0, 1]) if floor is None else floor
+        assert 0.0 <= expected < margin
+        geo = np.empty((2, 13))
+        K.capsule_geometry(a, b, radii, margin, geo)
+        assert K.pinch_margin(*p[0], geo, 0.5 * (a + b), margin) == pytest.approx(expected, abs=1e-12)
+        assert pinch_margin_np(p, a, b, radii, margin)[0] == pytest.approx(expected, abs=1e-12)
 
 
 def test_penetration_depth_kernel_matches_numpy(rng: np.random.Generator) -> None:

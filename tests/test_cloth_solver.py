@@ -202,6 +202,21 @@ def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Gen
     assert np.all(x[:, 1] >= y0 - 1e-12)
 
 
+@pytest.mark.parametrize("fn", ["numba", "numpy"])
+def test_line_solve_slides_a_particle_held_by_a_surface_in_one_pass(fn: str) -> None:
+    """Sliding projection: a stretched spring whose free end rests under a surface (the move
+    towards the pinned end points into it) is solved in one pass by sliding that end along the
+    surface (the correction divided by ``w (1 - (u . n)^2)``), not only the tangential share of it."""
+    x = np.array([[0.0, 0.0, 0.0], [0.09, -0.08, 0.0]])
+    inv_mass = np.array([0.0, 1.0])
+    lines, rest = np.array([[0, 1]]), np.array([[0.1]])
+    contact = np.zeros((2, 6))
+    contact[1, 1] = -1.0  # the surface lies above particle 1: it may not move up
+    (K.line_limit if fn == "numba" else line_limit_np)(x, inv_mass, lines, rest, 0.03, 0.1, contact)
+    assert x[1, 1] == pytest.approx(-0.08, abs=1e-12)  # nothing into the surface
+    assert np.linalg.norm(x[1]) == pytest.approx(0.103, abs=0.002)  # without it: 0.111 (8 % over)
+
+
 def test_whole_step_matches_numpy_reference() -> None:
     """The fused numba substep loop runs the same sequence as the numpy reference. (Once constraints
     are active, a rounding-level difference can flip which ones are, so the kernels are compared

@@ -185,26 +185,6 @@ def _move(x: F64, i: int, w: float, dx: float, dy: float, dz: float, contact: F6
 
 
 @_inline
-def _tangent_dot(contact: F64, i: int, ax: float, ay: float, az: float, bx: float, by: float,
-                 bz: float) -> float:  # pragma: no cover
-    """``a . P b`` with ``P`` the orthogonal projector onto the tangent space of the (up to two)
-    surfaces particle ``i`` touches (``a . b`` when it touches none)."""
-    r = ax * bx + ay * by + az * bz
-    n2x, n2y, n2z = contact[i, 3], contact[i, 4], contact[i, 5]
-    n1x, n1y, n1z = contact[i, 0], contact[i, 1], contact[i, 2]
-    if n1x * n1x + n1y * n1y + n1z * n1z > 0.5:
-        r -= (ax * n1x + ay * n1y + az * n1z) * (bx * n1x + by * n1y + bz * n1z)
-        k = n2x * n1x + n2y * n1y + n2z * n1z
-        n2x, n2y, n2z = n2x - k * n1x, n2y - k * n1y, n2z - k * n1z
-    l2 = n2x * n2x + n2y * n2y + n2z * n2z
-    if l2 > 1e-12:
-        inv = 1.0 / math.sqrt(l2)
-        n2x, n2y, n2z = n2x * inv, n2y * inv, n2z * inv
-        r -= (ax * n2x + ay * n2y + az * n2z) * (bx * n2x + by * n2y + bz * n2z)
-    return r
-
-
-@_inline
 def _tangent(contact: F64, i: int, mx: float, my: float, mz: float) -> tuple[float, float, float]:  # pragma: no cover
     """``P m``: ``m`` less its components along the (up to two) normals particle ``i`` touches
     (the projector of :func:`_tangent_dot`)."""
@@ -222,6 +202,15 @@ def _tangent(contact: F64, i: int, mx: float, my: float, mz: float) -> tuple[flo
         q = mx * n2x + my * n2y + mz * n2z
         mx, my, mz = mx - q * n2x, my - q * n2y, mz - q * n2z
     return mx, my, mz
+
+
+@_inline
+def _tangent_dot(contact: F64, i: int, ax: float, ay: float, az: float, bx: float, by: float,
+                 bz: float) -> float:  # pragma: no cover
+    """``a . P b`` with ``P`` the orthogonal projector onto the tangent space of the (up to two)
+    surfaces particle ``i`` touches (``a . b`` when it touches none)."""
+    px, py, pz = _tangent(contact, i, bx, by, bz)
+    return ax * px + ay * py + az * pz
 
 
 @_jit

@@ -73,16 +73,7 @@ def move_np(x: F64, idx: I64, delta: F64, contact: F64) -> None:
 def tangent_dot_np(c: F64, a: F64, b: F64) -> F64:
     """``a . P b`` (last axis), ``P`` the orthogonal projector onto the tangent space of the (up to
     two) contact normals ``c (..., 6)`` (reference of ``K._tangent_dot``)."""
-    r = np.einsum("...j,...j->...", a, b)
-    n1, n2 = c[..., 0:3], c[..., 3:6]
-    has1 = np.einsum("...j,...j->...", n1, n1) > 0.5
-    r = np.where(has1, r - np.einsum("...j,...j->...", a, n1) * np.einsum("...j,...j->...", b, n1), r)
-    k = np.einsum("...j,...j->...", n2, n1)
-    n2 = np.where(has1[..., None], n2 - k[..., None] * n1, n2)
-    l2 = np.einsum("...j,...j->...", n2, n2)
-    ok = l2 > 1e-12
-    n2 = n2 / np.sqrt(np.where(ok, l2, 1.0))[..., None]
-    out: F64 = np.where(ok, r - np.einsum("...j,...j->...", a, n2) * np.einsum("...j,...j->...", b, n2), r)
+    out: F64 = np.einsum("...j,...j->...", a, tangent_np(c, b))
     return out
 
 

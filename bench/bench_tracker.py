@@ -119,6 +119,8 @@ def main() -> int:
         "xor_no_smoothing": TrackerConfig(distance="xor", smoothing=None),
         "xor_map_pose": TrackerConfig(distance="xor", use_mean_pose=False),
         "xor_no_height_hypothesis": TrackerConfig(distance="xor", filter=FilterParams(height_hypothesis=False)),
+        # every node on its whole placement grid (no screening: the search before session 6)
+        "xor_exhaustive": TrackerConfig(distance="xor", filter=FilterParams(screen=())),
     }
     if args.configs:
         wanted = args.configs.split(",")

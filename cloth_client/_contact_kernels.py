@@ -14,8 +14,8 @@ from numba import njit
 from numpy.typing import NDArray
 
 __all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
-           "PINCH_DEPTH", "broad_phase", "capsule_geometry", "collide", "covered", "inline_kernel", "jit_kernel",
-           "penetration", "pinch_margin", "round_cone", "round_cone_geo"]
+           "PINCH_DEPTH", "broad_phase", "capsule_geometry", "clear_limbs", "collide", "covered", "inline_kernel",
+           "jit_kernel", "penetration", "pinch_margin", "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -416,3 +416,89 @@ def covered(points: F64, a: F64, b: F64, radii: F64, reach: F64, out: NDArray[np
                     break
                 d = round_cone_geo(points[k, p, 0], points[k, p, 1], points[k, p, 2], geo, c)[0]
                 out[p] = d < reach[c]
+
+
+@_inline
+def _deepest(a: F64, b: F64, radii: F64, cap: int, trunk: NDArray[np.int64], geo: F64, s: F64,
+             clearance: float) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """Deepest axis sample of capsule ``cap`` against the trunk rows of ``geo``: (push, n, s) with
+    push = ``r(s) + clearance - min_t d_t(s)`` and n the nearest trunk surface's outward normal."""
+    best, bx, by, bz, bs = -1e300, 0.0, 0.0, 1.0, 0.0
+    for j in range(s.shape[0]):
+        sj = s[j]
+        px = a[cap, 0] + sj * (b[cap, 0] - a[cap, 0])
+        py = a[cap, 1] + sj * (b[cap, 1] - a[cap, 1])
+        pz = a[cap, 2] + sj * (b[cap, 2] - a[cap, 2])
+        dmin, nx, ny, nz = 1e300, 0.0, 0.0, 1.0
+        for t in range(trunk.shape[0]):
+            d, mx, my, mz, _ = round_cone_geo(px, py, pz, geo, trunk[t])
+            if d < dmin:
+                dmin, nx, ny, nz = d, mx, my, mz
+        push = (1.0 - sj) * radii[cap, 0] + sj * radii[cap, 1] + clearance - dmin
+        if push > best:
+            best, bx, by, bz, bs = push, nx, ny, nz, sj
+    return best, bx, by, bz, bs
+
+
+@_inline
+def _place(pivot: F64, end: F64, target: F64, length: float) -> None:  # pragma: no cover
+    """``end`` (3,) set in place to ``pivot + length * unit(target - pivot)`` (kept if degenerate)."""
+    dx, dy, dz = target[0] - pivot[0], target[1] - pivot[1], target[2] - pivot[2]
+    n = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if n > 1e-12:
+        end[0], end[1], end[2] = pivot[0] + dx * length / n, pivot[1] + dy * length / n, pivot[2] + dz * length / n
+
+
+@_inline
+def _norm3(v: F64) -> float:  # pragma: no cover
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+@_jit
+def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDArray[np.int64], s: F64,
+                clearance: float, max_push: float, iterations: int) -> None:  # pragma: no cover
+    """Sunk forearms and hands turned out of the trunk, in place (reference and the rule:
+    :func:`cloth_client.limb_clearance.clear_limbs_np`).
+
+    Parameters
+    ----------
+    a, b : (K, C, 3) float64
+    radii : (C, 2) float64
+    arms : (2, 3) int64
+        Upper arm, forearm and hand capsule of each side (chained: ``b[upper] = a[forearm]``...).
+    trunk : (T,) int64
+    s : (S,) float64
+    clearance, max_push : float
+    iterations : int
+    """
+    geo = np.empty((a.shape[1], _GEO_COLS))
+    tgt = np.empty(3)
+    n = np.empty(3)
+    for k in range(a.shape[0]):
+        capsule_geometry(a[k], b[k], radii, 0.0, geo)
+        for side in range(arms.shape[0]):
+            chain = arms[side]
+            if _deepest(a[k], b[k], radii, chain[1], trunk, geo, s, clearance)[0] > max_push:
+                continue  # a forearm that cannot be cleared: the side stays as recorded (ghosted)
+            for _ in range(iterations):
+                moved = False
+                for i in (1, 2):  # forearm, then hand
+                    cap, parent = chain[i], chain[i - 1]
+                    push, n[0], n[1], n[2], sj = _deepest(a[k], b[k], radii, cap, trunk, geo, s, clearance)
+                    if push <= 1e-6 or push > max_push:
+                        continue
+                    moved = True
+                    den = (1.0 - sj) ** 2 + sj * sj
+                    ca, cb = push * (1.0 - sj) / den, push * sj / den
+                    near, far = a[k, cap].copy(), b[k, cap].copy()
+                    l_near, l_far = _norm3(b[k, parent] - a[k, parent]), _norm3(far - near)
+                    tgt[:] = near + ca * n  # the near end turns about the parent's pivot
+                    _place(a[k, parent], b[k, parent], tgt, l_near)
+                    a[k, cap] = b[k, parent]
+                    tgt[:] = far + (a[k, cap] - near) + cb * n  # the far end goes with it, then turns
+                    _place(a[k, cap], b[k, cap], tgt, l_far)
+                    if i == 1:  # the hand rides the wrist
+                        b[k, chain[2]] += b[k, cap] - far
+                        a[k, chain[2]] = b[k, cap]
+                if not moved:
+                    break

@@ -20,14 +20,18 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk_global
 from protocol.messages import BodyInfo, body_from_body_info
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
-from protocol.skeleton import CAPSULE_INDEX, CAPSULE_JOINTS, POSE_SIZE, Body
+from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 
 from ._contact_kernels import covered as covered_kernel
 from .collision import CapsuleTrack, round_cone_np
+from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, limb_overlap
 
 __all__ = [
+    "LIMBS",
+    "TRUNK",
     "AvatarKeys",
     "Continuity",
+    "avatar_capsules",
     "body_of",
     "capsule_endpoints",
     "interpolate_poses",
@@ -192,12 +196,27 @@ def _swing(c: F64, u: F64, y: F64) -> F64:
     return out
 
 
-def pose_keys(body: Body, poses: F64) -> AvatarKeys:
-    """Capsules and joint frames of a pose sequence ``(K + 1, P)`` (one FK call for all keys)."""
+def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE) -> AvatarKeys:
+    """Capsules and joint frames of a pose sequence ``(K + 1, P)`` (one FK call for all keys).
+
+    With ``clearance`` (metres; None: the recorded limbs) sunk forearms and hands are turned out of
+    the trunk (:func:`~cloth_client.limb_clearance.clear_limbs`); ``joints`` stay the recorded ones.
+    """
     joints, rot = fk_global(np.atleast_2d(poses), body)
     a = joints[:, CAPSULE_JOINTS[:, 0]]
     b = joints[:, CAPSULE_JOINTS[:, 1]]
+    if clearance is not None:
+        a, b = clear_limbs(a, b, body.capsule_radii, clearance)
     return AvatarKeys(CapsuleTrack(a, b, body.capsule_radii), joints, rot)
+
+
+def avatar_capsules(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE) -> tuple[F64, F64]:
+    """Capsule endpoints of the avatar the cloth is dressed on: :func:`capsule_endpoints` with sunk
+    forearms and hands turned out of the trunk (``(N, C, 3)``, or ``(C, 3)`` for one pose ``(P,)``)."""
+    a, b = capsule_endpoints(body, poses)
+    if clearance is None:
+        return a, b
+    return clear_limbs(a, b, body.capsule_radii, clearance)
 
 
 @dataclass(frozen=True)
@@ -252,39 +271,3 @@ def rigid_root_delta(p0: F64, p1: F64) -> tuple[F64, F64]:
     r1 = rotvec_to_matrix(p1[3:6])
     rot: F64 = r1 @ r0.T
     return rot, p1[:3] - rot @ p0[:3]
-
-
-#: Capsules that can sink into the body in a recording (forearms, hands) and the capsules they sink
-#: into (pelvis, abdomen, thorax, thighs); see :func:`limb_overlap`. LIMBS is (forearm, hand) per side.
-LIMBS = np.array([CAPSULE_INDEX[n] for n in ("l_forearm", "l_hand", "r_forearm", "r_hand")])
-TRUNK = np.array([CAPSULE_INDEX[n] for n in ("pelvis", "abdomen", "thorax", "l_thigh", "r_thigh")])
-
-
-def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
-                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9) -> F64:
-    """How deep each limb capsule's surface sinks into the trunk capsules in one pose.
-
-    Parameters
-    ----------
-    a, b : (C, 3) float64
-        Capsule endpoints, metres.
-    radii : (C, 2) float64
-        Capsule radii at ``a`` and ``b``.
-    limbs, trunk : (L,), (T,) int64
-        Capsule indices.
-    samples : int
-        Points sampled along each limb's axis.
-
-    Returns
-    -------
-    (L,) float64
-        Largest ``r_limb(s) - d_trunk(s)`` over the axis samples ``s`` and the trunk capsules,
-        metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0 when the
-        two surfaces overlap by that much, e.g. a forearm swung through the hips.
-    """
-    s = np.linspace(0.0, 1.0, samples)
-    r = (1.0 - s)[None, :] * radii[limbs, 0][:, None] + s[None, :] * radii[limbs, 1][:, None]  # (L, S)
-    pts = a[limbs][:, None] + s[None, :, None] * (b[limbs] - a[limbs])[:, None]  # (L, S, 3)
-    d, _, _ = round_cone_np(pts.reshape(-1, 3), a[trunk], b[trunk], radii[trunk, 0], radii[trunk, 1])
-    depth: F64 = (r.reshape(-1) - d.min(axis=1)).reshape(len(limbs), samples).max(axis=1)
-    return depth

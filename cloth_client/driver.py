@@ -40,6 +40,7 @@ from . import _kernels as K
 from .avatar import (
     LIMBS,
     Continuity,
+    avatar_capsules,
     capsule_endpoints,
     interpolate_poses,
     is_discontinuity,
@@ -61,6 +62,7 @@ from .cloth import (
 )
 from .collision import CapsuleTrack, round_cone_np
 from .garment import Garment
+from .limb_clearance import LIMB_CLEARANCE
 
 __all__ = ["ClothDriver", "DriverConfig", "FrameStats", "RunStats"]
 
@@ -71,7 +73,10 @@ GHOST_RADIUS = 1e-3  # radius of a limb that is sunk into the trunk (m); see Clo
 
 @dataclass(frozen=True)
 class DriverConfig:
-    """Timing of dressing, interpolation and resets (seconds; damping in 1/s)."""
+    """Timing of dressing, interpolation and resets (seconds; damping in 1/s); the sunk-limb rules
+    (metres): ``limb_clearance`` the gap sunk forearms and hands are turned out to
+    (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs), ``ghost_depth`` /
+    ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again."""
 
     key_dt: float = 1.0 / 240.0
     dress_s: float = 0.6
@@ -84,6 +89,7 @@ class DriverConfig:
     slide_fraction: float = 0.8
     ghost_depth: float = 0.02
     ghost_clear: float = -0.03
+    limb_clearance: float | None = LIMB_CLEARANCE
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -267,7 +273,8 @@ class ClothDriver:
     def _advance(self, p0: F64, p1: F64, dt: float, extra_damping: float = 0.0) -> None:
         assert self.state is not None
         n_keys = max(1, math.ceil(dt / self.config.key_dt - 1e-9))
-        keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)))
+        keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)),
+                         self.config.limb_clearance)
         g = self.garment
         pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
         released = self._widen(keys.covered(pins, self._seam_margin))
@@ -279,7 +286,7 @@ class ClothDriver:
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s
             extra_damping = self.config.reset_damping * min(1.0, left)
-        # substeps planned on the real limbs: a sunk limb's thin stand-in would count as fast
+        # substeps planned on the full-size limbs: a sunk limb's thin stand-in would count as fast
         n_sub = plan_substeps(self.model, keys.track, dt, self.state)
         self.state = step(self.state, self.model, self._ghosted(keys.track), pins, dt, released=released,
                           n_substeps=n_sub, extra_damping=extra_damping, tethers=self._held_tethers(released))
@@ -300,20 +307,24 @@ class ClothDriver:
         return self._tethers[key]
 
     def _ghosted(self, track: CapsuleTrack) -> CapsuleTrack:
-        """``track`` with the forearms and hands that are sunk into the trunk shrunk to a line.
+        """``track`` with the forearms and hands that are still sunk into the trunk shrunk to a line.
 
-        A limb whose surface sinks more than ``ghost_depth`` into the trunk's (a forearm swung
-        through the hips, a hand pressed into the belly: a pose no body can take, or the capsules'
-        crudeness) at the start or end of the step no longer pushes the cloth (it keeps a
-        ``GHOST_RADIUS``) until it is clear of the trunk again (``ghost_clear``, a gap when negative):
-        the cloth stays on the trunk under it instead of being squeezed into the overlap, dragged
-        into the body with the limb and left with the limb inside the garment. The forearm and the
-        hand of a side go together (a hand left active at a sunk wrist wedges cloth into the crease)."""
+        :mod:`~cloth_client.limb_clearance` turns a sunk limb out of the trunk when it can. One it
+        cannot (passing through the trunk, deeper than its ``MAX_PUSH``), or every sunk limb when
+        ``limb_clearance`` is None, sinks more than ``ghost_depth`` at the start or end of the step:
+        it then no longer pushes the cloth (it keeps a ``GHOST_RADIUS``), so the cloth stays on the
+        trunk under it instead of being squeezed into the overlap, dragged into the body with the
+        limb and left with the limb inside the garment. It pushes again once it is clear of the
+        trunk: turned out (half the clearance away; the cloth on the trunk under it is then
+        between the two) or, without the clearance rule, ``ghost_clear`` away (a gap when
+        negative). The forearm and the hand of a side go together (a hand left active at a sunk
+        wrist wedges cloth into the crease)."""
         cfg = self.config
         end = limb_overlap(track.a[-1], track.b[-1], track.radii)  # the start is the previous step's end
         depth = end if self._overlap is None else np.maximum(end, self._overlap)
         self._overlap = end
-        ghost = np.where(self._ghost, depth > cfg.ghost_clear, depth > cfg.ghost_depth)
+        clear = cfg.ghost_clear if cfg.limb_clearance is None else -0.5 * cfg.limb_clearance
+        ghost = np.where(self._ghost, depth > clear, depth > cfg.ghost_depth)
         self._ghost = ghost.reshape(-1, 2).any(axis=1).repeat(2)  # forearm and hand of a side together
         if not self._ghost.any():
             return track
@@ -365,7 +376,8 @@ class ClothDriver:
 
     def _measure(self, pose: F64, t: float, substeps: int, reset: bool) -> FrameStats:
         assert self.state is not None
-        a, b = self._body_end if self._body_end is not None else capsule_endpoints(self.body, pose)
+        a, b = self._body_end if self._body_end is not None else avatar_capsules(self.body, pose,
+                                                                                 self.config.limb_clearance)
         K.penetration(self.state.x, a, b, self.body.capsule_radii, self._free.astype(np.float64), self._depth)
         inside = self._depth > 0.0
         n_in = int(inside.sum())

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import Body
 
-from .avatar import capsule_endpoints
+from .avatar import avatar_capsules, capsule_endpoints
 from .garment import Garment
 
 __all__ = ["ClothRenderer", "FrameWriter", "round_cone_mesh", "vertex_normals"]
@@ -151,8 +151,9 @@ class ClothRenderer:
         self.scene.set_pose(self.fill_light, _look_at(2 * target - eye + np.array([0.0, 2.0, 0.0]), target))
 
     def render(self, pose: F64, cloth_x: F64) -> NDArray[np.uint8]:
-        """RGB image ``(H, W, 3) uint8`` of the avatar at ``pose (P,)`` wearing cloth ``cloth_x (N, 3)``."""
-        a, b = capsule_endpoints(self.body, pose)
+        """RGB image ``(H, W, 3) uint8`` of the avatar at ``pose (P,)`` wearing cloth ``cloth_x (N, 3)``
+        (the avatar the cloth is simulated on: sunk forearms and hands turned out of the trunk)."""
+        a, b = avatar_capsules(self.body, pose)
         for c, node in enumerate(self.capsule_nodes):
             self.scene.set_pose(node, _align_z(a[c], b[c]))
         if self.cloth_node is not None:

@@ -42,9 +42,11 @@ ARMS = np.array([[CAPSULE_INDEX[f"{side}_{n}"] for n in ("upper_arm", "forearm",
 #: Default gap left between a cleared limb's surface and the trunk's, metres: two cloth margins
 #: (:attr:`cloth_client.cloth.ClothParams.margin`), room for a layer of cloth between hand and hip.
 LIMB_CLEARANCE = 0.012
-#: Deepest push (metres) :func:`clear_limbs` makes; deeper limbs are ghosted by the driver. Below the
-#: ~10 cm where a forearm's axis would reach a thigh's (radius 6-9 cm) and half-way to a pelvis's.
-MAX_PUSH = 0.09
+#: Deepest push (metres) :func:`clear_limbs` makes; deeper limbs are ghosted by the driver. Short of
+#: the ~16 cm where a forearm's axis reaches the pelvis's or the abdomen's (radius 10-12 cm, forearm
+#: 3-4 cm, clearance) and the nearest surface flips side; 9 cm left the CMU takes with a hand 8-13 cm
+#: deep in the belly ghosted (24-29 mm of penetration, see docs/CLOTH.md).
+MAX_PUSH = 0.14
 _CHUNK = 24  # keys per batch in clear_limbs
 _MIN_LEVER = 0.25  # a point at axis fraction s moves s times the moving end: pushes at s < 0.25 capped
 

@@ -152,7 +152,8 @@ class _Outputs:
         if opts.frames_out is not None or opts.video is not None:
             from .render import ClothRenderer, FrameWriter
 
-            self.renderer = ClothRenderer(driver.body, driver.garment, *opts.size)
+            self.renderer = ClothRenderer(driver.body, driver.garment, *opts.size,
+                                          limb_clearance=driver.config.limb_clearance)
             self.writers = [FrameWriter(p, opts.video_fps) for p in (opts.frames_out, opts.video) if p is not None]
 
     def emit(self, frame: PoseFrame, result: LiveResult) -> None:

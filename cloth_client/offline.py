@@ -97,7 +97,7 @@ def simulate_motion(
     if video is not None:
         from .render import ClothRenderer, FrameWriter  # OpenGL only when a video is asked for
 
-        renderer = ClothRenderer(body, g, *size)
+        renderer = ClothRenderer(body, g, *size, limb_clearance=driver.config.limb_clearance)
         writer = FrameWriter(video, video_fps)
     strains = np.zeros(len(poses))
     sim_wall = render_wall = 0.0

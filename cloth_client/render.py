@@ -31,6 +31,7 @@ from protocol.skeleton import Body
 
 from .avatar import avatar_capsules, capsule_endpoints
 from .garment import Garment
+from .limb_clearance import LIMB_CLEARANCE
 
 __all__ = ["ClothRenderer", "FrameWriter", "round_cone_mesh", "vertex_normals"]
 
@@ -99,11 +100,15 @@ class ClothRenderer:
     azimuth_deg : float, optional
         Camera angle around the body relative to its facing (default: from behind-left for a cape,
         front-right for a skirt).
+    limb_clearance : float or None
+        The driver's :attr:`~cloth_client.driver.DriverConfig.limb_clearance`, so the avatar drawn
+        is the one simulated.
     """
 
     def __init__(self, body: Body, garment: Garment, width: int = 640, height: int = 480,
-                 azimuth_deg: float | None = None) -> None:
+                 azimuth_deg: float | None = None, limb_clearance: float | None = LIMB_CLEARANCE) -> None:
         self.body, self.garment = body, garment
+        self.limb_clearance = limb_clearance
         self.size = (int(width), int(height))
         self.azimuth = math.radians(_VIEW_AZIMUTH.get(garment.kind, 30.0) if azimuth_deg is None else azimuth_deg)
         self.scene = pyrender.Scene(bg_color=(0.93, 0.94, 0.96, 1.0), ambient_light=(0.18, 0.18, 0.18))
@@ -153,7 +158,7 @@ class ClothRenderer:
     def render(self, pose: F64, cloth_x: F64) -> NDArray[np.uint8]:
         """RGB image ``(H, W, 3) uint8`` of the avatar at ``pose (P,)`` wearing cloth ``cloth_x (N, 3)``
         (the avatar the cloth is simulated on: sunk forearms and hands turned out of the trunk)."""
-        a, b = avatar_capsules(self.body, pose)
+        a, b = avatar_capsules(self.body, pose, self.limb_clearance)
         for c, node in enumerate(self.capsule_nodes):
             self.scene.set_pose(node, _align_z(a[c], b[c]))
         if self.cloth_node is not None:

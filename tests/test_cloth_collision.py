@@ -399,3 +399,18 @@ def test_covered_kernel_matches_numpy() -> None:
         got, ref = keys.covered(pts, m), keys.covered(pts, m, backend="numpy")
         np.testing.assert_array_equal(got, ref)
         assert 20 < got.sum() < 480
+
+
+def test_skirt_hip_ease_widens_the_hips_but_stays_inside_the_arms() -> None:
+    body = default_body()
+    g0, g1 = make_skirt(body, 600), make_skirt(body, 600, hip_ease=0.02)
+    assert g0.grid_shape == g1.grid_shape
+    centre = g0.rest[g0.pin_index].mean(axis=0)
+    r0 = np.hypot(*(g0.rest - centre)[:, [0, 2]].T)
+    r1 = np.hypot(*(g1.rest - centre)[:, [0, 2]].T)
+    assert np.all(r1 >= r0 - 1e-12) and np.all(r1 <= r0 + 0.02 + 1e-9)
+    assert (r1 - r0).max() > 0.015  # some of the yoke gets the whole ease
+    np.testing.assert_array_equal(g1.rest[g1.pin_index], g0.rest[g0.pin_index])  # the waistband is the same
+    a, b = capsule_endpoints(body, standing_pose(body))
+    d, _, _ = round_cone_np(g1.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
+    assert d.min() > 0.006  # the hands still hang outside the cloth

@@ -6,14 +6,15 @@ recordings up to 14 cm deep, most often 2-7 cm, in 40 of 252 takes). No cloth po
 outside both parts, so cloth under the limb ends inside one of them, and a limb that later leaves
 the trunk drags the garment with it.
 
-:func:`clear_limbs` moves each sunk limb out, the way the arm itself would move: the forearm turns
-about the elbow (length kept) until its surface is ``clearance`` away from the trunk's, the hand is
-carried with the wrist and then turns about it the same way. The push is along the outward normal
-of the trunk surface nearest the deepest point of the limb's axis, by that point's depth plus the
-clearance, so it grows continuously from zero as a limb comes within the clearance: the corrected
-avatar moves as smoothly as the recorded one except where a limb passes right through the trunk's
-axis (the nearest surface then flips side). A point that cannot be cleared by turning about its
-pivot (an elbow sunk itself) is left for :meth:`cloth_client.driver.ClothDriver._ghosted`.
+:func:`clear_limbs` moves each sunk limb out the way the arm itself would move: the elbow turns about
+the shoulder and the wrist about the elbow (every length kept) until the limb's surface is
+``clearance`` away from the trunk's; the hand is carried with the wrist and then turns the same way.
+The push is along the outward normal of the trunk surface nearest the deepest point of the limb's
+axis, by that point's depth plus the clearance, so it grows continuously from zero as a limb comes
+within the clearance: the corrected avatar moves as smoothly as the recorded one. A limb passing
+right through the trunk has no continuous way out (the nearest surface flips side at the trunk's
+axis): a side whose forearm would need more than ``MAX_PUSH`` is left as recorded, for
+:meth:`cloth_client.driver.ClothDriver._ghosted`.
 
 The corrected capsules are the avatar: the cloth collides with them, penetration is measured
 against them and the renderer draws them (:func:`cloth_client.avatar.avatar_capsules`).
@@ -135,9 +136,10 @@ def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, m
     clearance : float
         Gap to leave between the limb's surface and the trunk's, metres.
     max_push : float
-        A capsule whose deepest axis sample would have to move further than this (metres) is left
-        where it is: a limb passing through the trunk has no continuous way out (the nearest
-        surface flips side at the trunk's axis), so the driver ghosts it instead.
+        A side whose forearm's deepest axis sample would have to move further than this (metres)
+        is left as recorded (a hand alone over it: the hand), since a limb passing through the
+        trunk has no continuous way out (the nearest surface flips side at the trunk's axis); the
+        driver ghosts it instead.
     iterations : int
         Rounds per side (each clears the deepest axis sample of each capsule).
     samples : int

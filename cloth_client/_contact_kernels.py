@@ -457,8 +457,8 @@ def _norm3(v: F64) -> float:  # pragma: no cover
 @_jit
 def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDArray[np.int64], s: F64,
                 clearance: float, max_push: float, iterations: int) -> None:  # pragma: no cover
-    """Sunk forearms and hands turned out of the trunk, in place (reference and the rule:
-    :func:`cloth_client.limb_clearance.clear_limbs_np`).
+    """Sunk forearms and hands turned out of the trunk, in place (the rule, and its numpy
+    reference: :func:`cloth_client.limb_clearance.clear_limbs` with ``backend="numpy"``).
 
     Parameters
     ----------

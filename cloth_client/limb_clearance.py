@@ -74,13 +74,13 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
         metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0 when the
         two surfaces overlap by that much, e.g. a forearm swung through the hips.
     """
-    depth, _, _ = _axis_depth(a[None], b[None], radii, limbs, trunk, np.linspace(0.0, 1.0, samples))
+    depth, _ = _axis_depth(a[None], b[None], radii, limbs, trunk, np.linspace(0.0, 1.0, samples))
     out: F64 = depth[0].max(axis=1)
     return out
 
 
 def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDArray[np.int64],
-                s: F64) -> tuple[F64, F64, F64]:
+                s: F64) -> tuple[F64, F64]:
     """Overlap of limb axis samples with the trunk, per key.
 
     Parameters
@@ -98,8 +98,6 @@ def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDA
         ``r_limb(s) - min_t d_t(s)``, metres.
     normal : (K, L, S, 3) float64
         Outward normal of the nearest trunk surface.
-    points : (K, L, S, 3) float64
-        The axis samples.
     """
     k, n_l, n_s, n_t = a.shape[0], len(limbs), len(s), len(trunk)
     pts = a[:, limbs, None] + s[None, None, :, None] * (b[:, limbs] - a[:, limbs])[:, :, None]  # (K, L, S, 3)
@@ -113,7 +111,7 @@ def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDA
     d_min = np.take_along_axis(d, nearest[..., None], axis=-1)[..., 0]
     normal = np.take_along_axis(nrm, nearest[..., None, None], axis=-2)[..., 0, :]
     r = (1.0 - s)[None, :] * radii[limbs, 0][:, None] + s[None, :] * radii[limbs, 1][:, None]  # (L, S)
-    return r[None] - d_min, normal, pts
+    return r[None] - d_min, normal
 
 
 def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, max_push: float = MAX_PUSH,
@@ -188,7 +186,7 @@ def _unit_towards(pivot: F64, target: F64, length: F64, keep: F64) -> F64:
 def _deepest(a: F64, b: F64, radii: F64, cap: int, clearance: float, s: F64) -> tuple[F64, F64, F64]:
     """Per key: the push (depth + clearance) of capsule ``cap``'s deepest axis sample ``(K,)``, the
     nearest trunk surface's outward normal there ``(K, 3)`` and the sample's axis fraction ``(K,)``."""
-    depth, normal, _ = _axis_depth(a, b, radii, np.array([cap]), TRUNK, s)
+    depth, normal = _axis_depth(a, b, radii, np.array([cap]), TRUNK, s)
     depth, normal = depth[:, 0] + clearance, normal[:, 0]  # (K, S), (K, S, 3)
     kk = np.arange(len(depth))
     j = depth.argmax(axis=1)

@@ -200,7 +200,7 @@ def test_database_round_trip_and_damage(small_db, tmp_path: Path) -> None:  # ty
 
 def test_motion_prior_kernel_matches_numpy_reference(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     from tracker_service._kernels import leaf_prior_kernel
-    from tracker_service.tree_filter import _motion_prior_reference
+    from tracker_service.filter_reference import motion_prior_reference
     db, *_ = small_db
     leaves = rng.choice(db.n_leaves, size=min(48, db.n_leaves), replace=False).astype(np.int64)
     w = rng.random(len(leaves))
@@ -211,6 +211,6 @@ def test_motion_prior_kernel_matches_numpy_reference(small_db, rng: np.random.Ge
             fast = np.zeros(db.n_leaves)
             leaf_prior_kernel(leaves, w, np.ascontiguousarray(db.nbr_idx, np.int64), np.ascontiguousarray(db.nbr_dpart),
                               inv_var, db.trans_ptr, db.trans_idx, db.trans_p, hw, fast)
-            ref = _motion_prior_reference(leaves, w, db, inv_var, hw)
+            ref = motion_prior_reference(leaves, w, db, inv_var, hw)
             assert ref.sum() == pytest.approx(1.0)  # the mass of the support is conserved
             np.testing.assert_allclose(fast, ref, rtol=1e-10, atol=1e-15)

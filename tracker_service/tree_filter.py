@@ -25,18 +25,24 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.rotations import matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
-from protocol.skeleton import POSE_SIZE
-
+from ._filter_kernels import (
+    expand_kernel,
+    heading_mass_kernel,
+    level_cost_kernel,
+    level_priors_kernel,
+    mean_pose_kernel,
+    node_predictions_kernel,
+)
 from ._kernels import leaf_prior_kernel
 from .features import LevelFeatures
 from .filter_model import Estimate, FilterDB, FilterParams, FilterState
+from .filter_reference import heading_mass_reference
 from .silhouette_distance import evaluate_template_grid
 from .skin import HAND_PARTS, SkinObservation, skin_cost
 
@@ -70,47 +76,39 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
     inv_var = 1.0 / (db.sigma_part.astype(np.float64) ** 2 * m2)  # (N_PARTS,)
     prior = np.zeros(nl)
     # eq. 13: Gaussian around the previous pose over each leaf's pose-space neighbours, plus eq. 5's
-    # transition histograms (numba; reference: _motion_prior_reference)
+    # transition histograms (numba; reference: filter_reference.motion_prior_reference)
     leaf_prior_kernel(np.ascontiguousarray(state.leaves, np.int64), np.ascontiguousarray(state.weights, np.float64),
                       db.nbr_idx, db.nbr_dpart, inv_var, db.trans_ptr, db.trans_idx, db.trans_p,
                       float(params.hist_weight), prior)
-    # re-acquisition mass, restricted to headings near the current one
+    # re-acquisition mass, restricted to headings near the current one (numba; reference:
+    # filter_reference.heading_mass_reference)
     cur = db.leaf_heading[state.leaves].astype(np.float64)
     mean_heading = np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur))
-    turn = np.abs(np.remainder(db.leaf_heading - mean_heading + np.pi, 2.0 * np.pi) - np.pi)
-    near = (turn < params.max_turn) & allowed
-    prior *= 1.0 - params.uniform_mass
-    prior[near] += params.uniform_mass / max(int(near.sum()), 1)
-    prior *= allowed
+    if not heading_mass_kernel(prior, np.ascontiguousarray(db.leaf_heading, np.float32), allowed,
+                               float(mean_heading), float(params.max_turn), float(params.uniform_mass)):
+        prior = heading_mass_reference(prior, db.leaf_heading, allowed, float(mean_heading), params.max_turn,
+                                       params.uniform_mass)
     if prior.sum() <= 0:
         prior = allowed.astype(np.float64)
     return prior / prior.sum()
 
 
-def _motion_prior_reference(leaves: NDArray[np.int64], weights: NDArray[np.float64], db: FilterDB,
-                            inv_var: NDArray[np.float64], hist_weight: float) -> NDArray[np.float64]:
-    """Plain-numpy reference of :func:`tracker_service._kernels.leaf_prior_kernel` (unnormalised
-    eq. 13 + eq. 5 mass of the supported leaves; a test holds the two equal)."""
-    prior = np.zeros(db.n_leaves)
-    for leaf, w in zip(leaves, weights, strict=True):
-        g = np.exp(-0.5 * db.nbr_dpart[leaf].astype(np.float64) @ inv_var)
-        g /= g.sum()
-        a, b = db.trans_ptr[leaf], db.trans_ptr[leaf + 1]
-        hw = hist_weight if b > a else 0.0
-        prior[db.nbr_idx[leaf]] += w * (1.0 - hw) * g
-        if hw:
-            prior[db.trans_idx[a:b]] += w * hw * db.trans_p[a:b]
-    return prior
-
-
+@lru_cache(maxsize=64)
 def _offsets(step_px: float, step_s: float, nx: int, ns: int) -> NDArray[np.float64]:
-    """Placement offsets ``(ddx, 0, ds)`` of a small search grid (``ds`` relative)."""
+    """Placement offsets ``(ddx, 0, ds)`` of a small search grid (``ds`` relative).
+
+    Returns
+    -------
+    (nx * ns, 3) float64
+        Read-only (cached: the same few grids every frame).
+    """
     kx = np.arange(nx) - (nx - 1) / 2
     ks = np.arange(ns) - (ns - 1) / 2
     dx, ds = np.meshgrid(kx * step_px, ks * step_s, indexing="ij")
     out = np.zeros((dx.size, 3))
     out[:, 0] = dx.ravel()
     out[:, 2] = ds.ravel()
+    out.setflags(write=False)
     return out
 
 
@@ -162,7 +160,7 @@ def _level_cost(db: FilterDB, feats: LevelFeatures, level: int, nodes: NDArray[n
         d, pl = d.reshape(len(sub), -1), pl.reshape(len(sub), -1, 3)
     else:
         d, pl = _eval_level(db, feats, level, sub, cen, offsets)
-    t = 0.5 * (d / params.sigma[level]) ** 2 + _mixture_cost(pl, node_pred[sel], params, motion_scale)
+    t = _cost(d, pl, node_pred[sel], params.sigma[level], params, motion_scale)
     return t + _skin_cost(db, level, sub, pl, skin, params), pl, d.size
 
 
@@ -208,14 +206,14 @@ def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]]
 
 
 def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
-    n = len(poses)
-    q = matrix_to_quat(rotvec_to_matrix(poses[:, 3:].reshape(n, -1, 3)))  # (n, R, 4)
-    q = np.where((np.einsum("nrc,rc->nr", q, q[0]) < 0)[..., None], -q, q)  # same hemisphere
-    qm = np.einsum("n,nrc->rc", w, q)
-    out = np.empty(POSE_SIZE)
-    out[:3] = w @ poses[:, :3]
-    out[3:] = matrix_to_rotvec(quat_to_matrix(qm)).reshape(-1)
-    return out
+    """Weighted mean of poses ``(n, P)``: root averaged, rotations as the normalised weighted sum
+    of quaternions on one hemisphere (numba; reference: filter_reference.mean_pose_reference).
+
+    Returns
+    -------
+    (P,) float64
+    """
+    return mean_pose_kernel(np.ascontiguousarray(poses, np.float64), np.ascontiguousarray(w, np.float64))
 
 
 def _tempered(w: NDArray[np.float64], temperature: float) -> NDArray[np.float64]:
@@ -226,18 +224,22 @@ def _tempered(w: NDArray[np.float64], temperature: float) -> NDArray[np.float64]
     return t / t.sum()
 
 
-def _finite(x: NDArray[np.float64], fill: float = 0.0) -> NDArray[np.float64]:
-    """``x`` with NaN (a template without rows or columns at a level) replaced by ``fill``; a
-    cheaper ``np.nan_to_num`` for the per-level arrays of the search."""
-    return np.where(np.isnan(x), fill, x)
+def _cost(d: NDArray[np.float64], places: NDArray[np.float64], hyps: NDArray[np.float64], sigma: float,
+          params: FilterParams, motion_scale: float) -> NDArray[np.float64]:
+    """eq. 6's negative log likelihood of distances ``d`` ``(n, G)`` plus the placement prior of
+    ``places`` ``(n, G, 3)``: a Gaussian in shift and scale around the cheaper of each node's
+    hypotheses ``(n, H, 3)``, the height hypothesis's scale held to the motion prediction's
+    ``motion_scale`` (a body off the floor has not changed depth; a wrong pose cannot buy the
+    silhouette's height by a jump in depth) at ``airborne_cost`` more (numba; reference:
+    filter_reference.level_cost_reference).
 
-
-def _placement_cost(places: NDArray[np.float64], pred: NDArray[np.float64], params: FilterParams
-                    ) -> NDArray[np.float64]:
-    """Negative log prior of placements around the predicted ones (Gaussian in shift and scale);
-    ``pred`` broadcasts against ``places`` (both ``(..., 3)``)."""
-    return 0.5 * (((places[..., 0] - pred[..., 0]) / params.placement_sigma_px) ** 2
-                  + ((places[..., 2] / pred[..., 2] - 1.0) / params.placement_sigma_scale) ** 2)
+    Returns
+    -------
+    (n, G) float64
+    """
+    return level_cost_kernel(np.ascontiguousarray(d, np.float64), np.ascontiguousarray(places, np.float64),
+                             np.ascontiguousarray(hyps, np.float64), float(sigma), float(params.placement_sigma_px),
+                             float(params.placement_sigma_scale), float(motion_scale), float(params.airborne_cost))
 
 
 def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: NDArray[np.float64],
@@ -260,6 +262,9 @@ def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: 
     so that its lowest row meets the observed one. The silhouette decides between the two
     (:func:`step` evaluates both; the placement prior is their mixture).
 
+    Computed by :func:`tracker_service._filter_kernels.node_predictions_kernel` (reference:
+    :func:`tracker_service.filter_reference.node_predictions_reference`).
+
     Parameters
     ----------
     rows : (2,) float, optional
@@ -274,44 +279,18 @@ def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: 
     (n, H, 3) float64
         ``H`` = 1, or 2 with ``rows``.
     """
-    out = np.repeat(pred[None], len(nodes), axis=0)
-    has_rows = bool(db.level_bottom) and np.isfinite(db.ref_bottom)
-    cy = db.center[1]
-    bottom = db.level_bottom[level][nodes] if has_rows else None
-    if obs_weight > 0 and obs is not None and bottom is not None:
-        c = (db.ref_bottom - cy) / np.maximum(bottom - cy, 1.0)
-        c = np.clip(_finite(c, 1.0), 0.8, 2.0)
-        out[:, 2] += obs_weight * obs[2] * (c - 1.0)
-        out[:, 1] += obs_weight * obs[1] * (c - 1.0)
-    hyps = [out]
-    if rows is not None and bottom is not None and db.level_top:
-        height = bottom - db.level_top[level][nodes]
-        ok = np.isfinite(height) & (height > 4.0)
-        alt = out.copy()
-        s_h = np.where(ok, (rows[1] - rows[0]) / np.where(ok, height, 1.0), out[:, 2])
-        alt[:, 2] = np.clip(s_h, *scale_range)
-        alt[:, 1] = np.where(ok, rows[1] - cy - alt[:, 2] * (_finite(bottom) - cy), out[:, 1])
-        hyps.append(alt)
-    res = np.stack(hyps, axis=1)
-    if obs_weight > 0 and db.level_column and np.isfinite(db.ref_column):
-        corr = obs_weight * res[..., 2] * (db.ref_column - db.level_column[level][nodes])[:, None]
-        res[..., 0] += _finite(corr)
-    return res
-
-
-def _mixture_cost(places: NDArray[np.float64], hyps: NDArray[np.float64], params: FilterParams,
-                  motion_scale: float | None = None) -> NDArray[np.float64]:
-    """Placement prior of ``places`` ``(n, G, 3)`` under the mixture of the nodes' hypotheses
-    ``(n, H, 3)`` (the cheapest hypothesis for each placement). The height hypothesis's scale is
-    held to the motion prediction's ``motion_scale`` (a body off the floor has not changed depth;
-    a wrong pose cannot buy the silhouette's height by a jump in depth)."""
-    costs = [_placement_cost(places, hyps[:, 0, None], params)]
-    if hyps.shape[1] > 1:
-        ref = hyps[:, 1].copy()
-        if motion_scale is not None:
-            ref[:, 2] = motion_scale
-        costs.append(_placement_cost(places, ref[:, None], params) + params.airborne_cost)
-    return np.min(costs, axis=0)
+    has_rows = bool(db.level_bottom) and bool(np.isfinite(db.ref_bottom))
+    use_obs = obs_weight > 0 and obs is not None and has_rows
+    use_height = rows is not None and has_rows and bool(db.level_top)
+    use_column = obs_weight > 0 and bool(db.level_column) and bool(np.isfinite(db.ref_column))
+    none = np.zeros(0)
+    return node_predictions_kernel(
+        np.ascontiguousarray(nodes, np.int64), np.ascontiguousarray(pred, np.float64),
+        none if obs is None else np.ascontiguousarray(obs, np.float64), float(obs_weight), use_obs,
+        db.level_bottom[level] if has_rows else none, db.level_top[level] if use_height else none, use_height,
+        none if rows is None else np.ascontiguousarray(rows, np.float64), float(scale_range[0]),
+        float(scale_range[1]), db.level_column[level] if use_column else none, use_column, float(db.ref_column),
+        float(db.ref_bottom), float(db.center[1]))
 
 
 def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArray[np.float64],
@@ -380,8 +359,11 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     post = np.zeros(0)
     node_place = centers
     cost = np.zeros(0)
+    bounds = np.concatenate([[0], np.cumsum(tree.level_sizes)]).astype(np.int64)
+    all_priors = np.zeros(int(bounds[-1]))
+    level_priors_kernel(db.leaf_anc, prior, bounds, all_priors)  # eq. 4 (reference: np.bincount)
     for lvl in range(n_levels):
-        node_prior = np.bincount(db.leaf_anc[lvl], weights=prior, minlength=tree.level_sizes[lvl])[nodes]
+        node_prior = all_priors[bounds[lvl]: bounds[lvl + 1]][nodes]
         shrink = 0.5**lvl
         grid = params.grid[lvl]
         offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
@@ -407,14 +389,13 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
             n_lik = params.keep_likelihood[lvl] if lvl < len(params.keep_likelihood) else 0
             if n_lik:  # data-driven proposal: the best nodes by likelihood alone survive a misleading prior
                 keep = np.union1d(keep, np.argsort(cost)[:n_lik])
-            kids = [tree.children(lvl, int(nodes[k])) for k in keep]
-            parent = np.repeat(keep, [len(c) for c in kids])
-            centers = node_place[parent].copy()
-            parent_nodes = nodes[parent]
-            nodes = np.concatenate(kids)
-            if db.level_column:  # a child's template column differs from its parent's
-                dcol = db.level_column[lvl][parent_nodes] - db.level_column[lvl + 1][nodes]
-                centers[:, 0] += _finite(centers[:, 2] * dcol)
+            # the kept nodes' children start from their parent's best placement, corrected for the
+            # difference of their template columns (numba; reference: filter_reference.expand_reference)
+            cols = db.level_column
+            nodes, centers = expand_kernel(tree.child_ptr[lvl], nodes, np.ascontiguousarray(keep, np.int64),
+                                           np.ascontiguousarray(node_place, np.float64),
+                                           cols[lvl] if cols else np.zeros(0), cols[lvl + 1] if cols else np.zeros(0),
+                                           bool(cols))
     leaves = nodes
     order = np.argsort(-post)
     # refine the placement of the best leaves at full resolution
@@ -423,7 +404,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
     evals[-1] += d_ref.size
     top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs, sil_rows, s_range)
-    total = 0.5 * (d_ref / params.sigma[-1]) ** 2 + _mixture_cost(places, top_pred, params, motion_scale)
+    total = _cost(d_ref, places, top_pred, params.sigma[-1], params, motion_scale)
     total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
     best = np.argmin(total, axis=1)
     rows = np.arange(len(top))

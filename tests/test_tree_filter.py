@@ -1,6 +1,7 @@
 """Template database build, on-disk format and the tree-based filter on a small fixture database
 (a few real takes, one body model), tracked from capsule silhouettes of another body."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +47,18 @@ def test_prior_is_a_distribution_and_follows_the_state(small_db) -> None:  # typ
     occ = type(st)(st.leaves, st.weights, st.placement, occluded=np.ones(15, bool))
     p2 = predict_leaves(occ, db, FilterParams())
     assert p2[5] < p1[5]
+
+
+def test_prior_with_headings_outside_pi_takes_the_numpy_path(small_db) -> None:  # type: ignore[no-untyped-def]
+    """A database whose headings are stored past +-pi (not one `build-db` writes) falls back from the
+    numba re-acquisition mass to its numpy reference; headings a turn apart give the same prior."""
+    db, *_ = small_db
+    st = initial_state()
+    st = type(st)(np.array([5, 9]), np.array([0.7, 0.3]), st.placement)
+    turned = replace(db, leaf_heading=(db.leaf_heading.astype(np.float64) + 2.0 * np.pi).astype(np.float32))
+    p_in, p_out = predict_leaves(st, db, FilterParams()), predict_leaves(st, turned, FilterParams())
+    assert p_out.sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(p_out, p_in, rtol=1e-9, atol=1e-15)
 
 
 def test_max_heading_keeps_the_prior_on_leaves_facing_the_camera(small_db) -> None:  # type: ignore[no-untyped-def]

@@ -53,6 +53,7 @@ __all__ = [
     "long_range_attach",
     "penetration",
     "pinch_margin",
+    "ring_limit",
     "round_cone",
     "round_cone_geo",
     "simulate_substeps",
@@ -331,6 +332,45 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
             _move(x, row[k], inv_mass[row[k]], mx, my, mz, contact)
 
 
+@_jit
+def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float, max_compression: float,
+               contact: F64) -> None:  # pragma: no cover
+    """:func:`line_limit` round closed rings, each solved as the open chain that starts after its
+    slackest spring.
+
+    ``rings (R, m)`` lists the particles round each ring and ``rest (R, m)`` the rest length from
+    particle ``k`` to particle ``k + 1`` (mod ``m``). A closed ring pressed round a body has no
+    well-posed linearised solve (shortening it by sliding along the body is singular), so each ring
+    is cut once; an open chain's contraction pulls its two end particles apart, and the spring
+    between them takes that stretch. Cut after the spring with the smallest length over rest length,
+    it goes where the ring has slack to give (a fixed cut made the spring there hold the residual of
+    every frame whose ring is too short for the body: the back centre of a skirt over a pelvis
+    tilted by a bow). Ties go to the first such spring (the numpy reference computes the same
+    ratios, but rounding may break a near-tie differently). Rings must not share particles; the
+    rotated rings ``(R, m)`` are gathered into work arrays (two small allocations per call).
+    """
+    n_rings, m = rings.shape
+    if n_rings == 0:
+        return
+    rows = np.empty((n_rings, m), dtype=np.int64)
+    rows_rest = np.empty((n_rings, m - 1))
+    for ln in range(n_rings):
+        cut = 0
+        slack = np.inf
+        for k in range(m):
+            i, j = rings[ln, k], rings[ln, (k + 1) % m]
+            dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+            ratio = math.sqrt(dx * dx + dy * dy + dz * dz) / rest[ln, k]
+            if ratio < slack:
+                slack = ratio
+                cut = k
+        for k in range(m):
+            rows[ln, k] = rings[ln, (cut + 1 + k) % m]
+        for k in range(m - 1):
+            rows_rest[ln, k] = rest[ln, (cut + 1 + k) % m]
+    line_limit(x, inv_mass, rows, rows_rest, max_stretch, max_compression, contact)
+
+
 @_inline
 def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
     k = keys.shape[0] - 1
@@ -395,7 +435,7 @@ def simulate_substeps(
             for _sweep in range(lim_sweeps):
                 line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
                 line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-                line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
+                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
             strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1, contact)
             for i in range(n):
                 if inv_mass[i] > 0.0:
@@ -412,7 +452,7 @@ def simulate_substeps(
             for _sweep in range(final_sweeps):
                 line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
                 line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-                line_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
+                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
             strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
             for i in range(n):
                 for d in range(3):

@@ -151,12 +151,16 @@ class ClothModel:
     reach : (N,) float64
         Long-range attachment radius of every particle around ``garment.anchor``, metres.
     lines_v, lines_h : (cols, rows) and (rows, cols) int64
-        Particles of every grid column and row, in order (for the line solves).
+        Particles of every grid column and row, in order (for the line solves); a wrapping
+        garment's rows are solved both as these open lines (cut at the seam) and as rings
+        (``lines_s``).
     rest_v, rest_h : (cols, rows - 1) and (rows, cols - 1) float64
         Rest lengths between neighbours along those lines, metres.
-    lines_s, rest_s : int64, float64
-        For a garment wrapping round, the rows again with the seam moved half-way round (so the
-        row solves also carry tension across the seam); empty ``(0, 2)`` otherwise.
+    lines_s, rest_s : (rows, cols) int64, (rows, cols) float64
+        For a garment wrapping round, the rows as closed rings (column 0, the front centre, follows
+        the last column) and the rest length from each particle to the next round the ring, for
+        the ring solves (:func:`cloth_client._kernels.ring_limit`, each ring cut at its slackest
+        spring); empty ``(0, 2)`` otherwise.
     lim_springs : (L, 2) int64
     lim_lo, lim_hi : (L,) float64
         Structural springs in strain-limiting order (``garment.limit_springs``) and their length
@@ -218,14 +222,17 @@ def build_model(garment: Garment, params: ClothParams | None = None) -> ClothMod
     reach = g.anchor_dist * (1.0 + p.max_stretch) if p.tethers else np.full(g.n_particles, np.inf)
     idx = np.arange(g.n_particles, dtype=np.int64).reshape(g.grid_shape)
     lines_v, lines_h = np.ascontiguousarray(idx.T), idx
-    lines_s = np.ascontiguousarray(np.roll(idx, -(idx.shape[1] // 2), axis=1)) if g.wrap else np.zeros((0, 2), np.int64)
+    lines_s, rest_s = np.zeros((0, 2), np.int64), np.zeros((0, 2))
+    if g.wrap:  # the rows again, as closed rings (K.ring_limit)
+        lines_s = idx
+        rest_s = np.linalg.norm(g.rest[np.roll(idx, -1, axis=1)] - g.rest[idx], axis=-1)
 
     def line_rest(lines: I64) -> F64:
         out: F64 = np.linalg.norm(g.rest[lines[:, 1:]] - g.rest[lines[:, :-1]], axis=-1)
         return out
 
     return ClothModel(g, p, np.ascontiguousarray(springs), rest, k, kd, inv_mass, reach, lines_v, line_rest(lines_v),
-                      lines_h, line_rest(lines_h), lines_s, line_rest(lines_s), np.ascontiguousarray(g.limit_springs),
+                      lines_h, line_rest(lines_h), lines_s, rest_s, np.ascontiguousarray(g.limit_springs),
                       rl * (1.0 - p.max_compression), rl * (1.0 + p.max_stretch), stable)
 
 

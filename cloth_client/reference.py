@@ -39,8 +39,8 @@ from .contact import collide_np
 if TYPE_CHECKING:
     from .cloth import ClothModel
 
-__all__ = ["drag_forces_np", "line_limit_np", "long_range_attach_np", "move_np", "spring_forces_np",
-           "strain_limit_np", "substeps_np", "tangent_dot_np", "tangent_np"]
+__all__ = ["drag_forces_np", "line_limit_np", "long_range_attach_np", "move_np", "ring_limit_np",
+           "spring_forces_np", "strain_limit_np", "substeps_np", "tangent_dot_np", "tangent_np"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -153,6 +153,21 @@ def line_limit_np(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: flo
     move_np(x, lines.ravel(), (w[..., None] * move).reshape(-1, 3), contact)
 
 
+def ring_limit_np(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float, max_compression: float,
+                  contact: F64) -> None:
+    """Strain limiting round closed rings, in place (reference of ``K.ring_limit``): each ring
+    ``rings[r] (m,)`` (rest lengths ``rest[r, k]`` from particle ``k`` to ``k + 1`` mod ``m``) is
+    solved by :func:`line_limit_np` as the open chain that starts after its slackest spring."""
+    if rings.shape[0] == 0:
+        return
+    m = rings.shape[1]
+    d = x[np.roll(rings, -1, axis=1)] - x[rings]
+    ratio = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]) / rest
+    order = (np.argmin(ratio, axis=1)[:, None] + 1 + np.arange(m)) % m
+    line_limit_np(x, inv_mass, np.take_along_axis(rings, order, axis=1),
+                  np.take_along_axis(rest, order[:, :-1], axis=1), max_stretch, max_compression, contact)
+
+
 def spring_forces_np(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64) -> F64:
     """Hooke + axial damping forces ``(N, 3)`` of ``springs (S, 2)`` (reference of ``K.spring_forces``)."""
     d = x[springs[:, 1]] - x[springs[:, 0]]
@@ -181,9 +196,9 @@ def drag_forces_np(x: F64, v: F64, tris: I64, coeff: float, wind: F64) -> F64:
 def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: int) -> None:
     p = model.params
     for _ in range(sweeps):
-        for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h),
-                            (model.lines_s, model.rest_s)):
+        for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h)):
             line_limit_np(x, inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
+        ring_limit_np(x, inv_mass, model.lines_s, model.rest_s, p.max_stretch, p.max_compression, contact)
 
 
 def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,

@@ -22,6 +22,7 @@ from cloth_client.reference import (
     drag_forces_np,
     line_limit_np,
     long_range_attach_np,
+    ring_limit_np,
     spring_forces_np,
     strain_limit_np,
 )
@@ -181,11 +182,20 @@ def test_constraint_kernels_match_numpy(model, rng: np.random.Generator) -> None
     long_range_attach_np(b, model.inv_mass, g.anchor, model.reach * 0.97)
     np.testing.assert_allclose(a, b, atol=1e-12)
     # each kernel from identical inputs: chained, rounding could flip which constraints are active
-    for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h), (model.lines_s, model.rest_s)):
+    for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h)):
         b = a.copy()
         K.line_limit(a, model.inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
         line_limit_np(b, model.inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
         np.testing.assert_allclose(a, b, atol=1e-12)
+    rings = (model.lines_s, model.rest_s)
+    before = a.copy()
+    if model.garment.wrap:  # the rings of the perturbed cloth, before the row solves brought them in
+        before[:] = x
+    a, b = before.copy(), before.copy()
+    K.ring_limit(a, model.inv_mass, *rings, p.max_stretch, p.max_compression, contact)
+    ring_limit_np(b, model.inv_mass, *rings, p.max_stretch, p.max_compression, contact)
+    np.testing.assert_allclose(a, b, atol=1e-12)
+    assert (np.abs(a - before).max() > 1e-3) == model.garment.wrap  # rings solved (a cape has none)
     b = a.copy()
     K.strain_limit(a, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, 3, contact)
     strain_limit_np(b, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 3, contact)
@@ -215,6 +225,39 @@ def test_line_solve_slides_a_particle_held_by_a_surface_in_one_pass(fn: str) -> 
     (K.line_limit if fn == "numba" else line_limit_np)(x, inv_mass, lines, rest, 0.03, 0.1, contact)
     assert x[1, 1] == pytest.approx(-0.08, abs=1e-12)  # nothing into the surface
     assert np.linalg.norm(x[1]) == pytest.approx(0.103, abs=0.002)  # without it: 0.111 (8 % over)
+
+
+@pytest.mark.parametrize("fn", ["numba", "numpy"])
+def test_ring_solve_cuts_each_ring_at_its_slackest_spring(fn: str) -> None:
+    """Closed rings of 12 free particles, every spring 6 % over its rest length except one slack
+    spring (a different one in each ring): each ring is solved as the open chain that starts after
+    its slack spring, so every stretched spring comes back to the 3 % limit and the stretch the
+    chain's contraction leaves goes to the slack spring (a fixed cut puts it into a stretched one)."""
+    m = 12
+    theta = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
+    circle = np.stack([0.2 * np.cos(theta), np.zeros(m), 0.2 * np.sin(theta)], axis=1)
+    length = np.linalg.norm(np.roll(circle, -1, axis=0) - circle, axis=1)
+    # three rings solved together (particles 0-11, 12-23, 24-35), the slack spring elsewhere in each
+    slack_at = np.array([0, 5, 11])
+    x = np.concatenate([circle + np.array([0.0, 0.3 * r, 0.0]) for r in range(3)])
+    rings = np.arange(3 * m).reshape(3, m)
+    rest = np.tile(length / 1.06, (3, 1))
+    rest[np.arange(3), slack_at] = length[slack_at] / 0.90  # 10 % slack
+    (K.ring_limit if fn == "numba" else ring_limit_np)(x, np.ones(3 * m), rings, rest, 0.03, 0.2,
+                                                      np.zeros((3 * m, 6)))
+    for r in range(3):
+        ring = x[rings[r]]
+        strain = np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1) / rest[r] - 1.0
+        assert np.all(np.delete(strain, slack_at[r]) < 0.031), strain  # 3 % to first order
+        assert strain[slack_at[r]] < 0.0  # the chain's ends pulled apart into the slack, not past it
+    # the same ring cut at a stretched spring (a fixed cut): that spring takes the contraction
+    x = circle.copy()
+    rest = length / 1.06
+    rest[5] = length[5] / 0.90
+    order = (8 + 1 + np.arange(m)) % m  # the chain that starts after spring 8 (particles 8 -> 9)
+    (K.line_limit if fn == "numba" else line_limit_np)(x, np.ones(m), order[None], rest[order[:-1]][None], 0.03,
+                                                      0.2, np.zeros((m, 6)))
+    assert np.linalg.norm(x[9] - x[8]) / rest[8] - 1.0 > 0.10
 
 
 def test_whole_step_matches_numpy_reference() -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from dataclasses import replace
@@ -97,12 +98,19 @@ def main() -> int:
     ap.add_argument("--configs", help="comma-separated rows to run (default: all; e.g. xor_dm2 for the main row "
                                       "alone on another subject)")
     ap.add_argument("--no-pyramid", action="store_true", help="skip the pyramid speed-up measurement")
+    ap.add_argument("--cpu", type=int, default=0,
+                    help="pin the benchmark to this one CPU (the targets are per core; -1: do not pin)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    if args.cpu >= 0:
+        if args.cpu not in os.sched_getaffinity(0):
+            raise SystemExit(f"--cpu {args.cpu}: not one of this process's CPUs {sorted(os.sched_getaffinity(0))}")
+        os.sched_setaffinity(0, {args.cpu})
     loaded = ensure_db(None)  # also compiles the kernels, so the next figure is the arrays alone
     rss0 = _rss_mb()
     full = load_db(default_db_dir(), verify=False, mmap=False)
     res: dict[str, Any] = {"machine": f"{platform.node()} {platform.machine()}", "python": platform.python_version(),
+                           "pinned_cpu": args.cpu if args.cpu >= 0 else None,
                            "db_rss_mb": round(_rss_mb() - rss0, 1), "templates": loaded.db.n_leaves,
                            "tree_levels": loaded.db.tree.level_sizes}
     del full
@@ -152,6 +160,7 @@ def main() -> int:
                          "reacquire_s_max_of_reacquired": max((x for x in re if x is not None), default=None),
                          "ms_total_avg": round(float(np.mean([r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
                          "ms_total_max": round(float(np.max([r["ms_per_frame"]["total"]["max"] for r in rs])), 2),
+                         "initialisation_ms_avg": round(float(np.mean([r["initialisation_ms"] for r in rs])), 1),
                          "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs],
                                                     axis=0).round(0).tolist()}
     res["summary"] = summary

@@ -117,3 +117,48 @@ def test_grid_kernel_equals_flat_kernel(rng: np.random.Generator) -> None:
     assert grid.shape == (4, 9)
     assert len(np.unique(grid)) > 9  # placements differ: the comparison is not vacuous
     np.testing.assert_array_equal(grid.ravel(), flat)
+    one = evaluate_template_grid(feats, rs, np.repeat(ids, 9), tr.reshape(-1, 1, 3), (40.0, 30.0))  # G = 1
+    np.testing.assert_array_equal(one.ravel(), flat)
+
+
+def _plain_run_sums(integral: np.ndarray, runs: np.ndarray, tr: np.ndarray, cx: float, cy: float,
+                    outside: float) -> np.ndarray:
+    """eq. 12 in its plain form, run by run in the kernel's order (the kernel's shortcuts removed)."""
+    h, w = integral.shape[0], integral.shape[1] - 1
+    out = np.zeros(len(tr))
+    for m, (dx, dy, s) in enumerate(tr):
+        acc = 0.0
+        for y, x0, x1 in runs.astype(np.int64):
+            ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+            xl = int(np.floor(cx + dx + s * (x0 - cx) + 0.5))
+            xr = int(np.floor(cx + dx + s * (x1 - cx) + 0.5))
+            if xr <= xl:
+                continue
+            cl, cr = min(max(xl, 0), w), min(max(xr, 0), w)
+            for yy in range(ya, yb):
+                if yy < 0 or yy >= h:
+                    acc += outside * (xr - xl)
+                else:
+                    acc += integral[yy, cr] - integral[yy, cl] + outside * ((xr - xl) - (cr - cl))
+        out[m] = acc
+    return out
+
+
+def test_kernel_sums_are_bit_equal_to_the_plain_form(rng: np.random.Generator) -> None:
+    """The kernel's shortcuts (a row's start carried from the previous row's end, the outside term
+    skipped inside the image) change no bit, also for placements partly outside the image."""
+    from tracker_service._kernels import eval_runs_kernel
+
+    s = _person(arm=0.8)
+    feats = preprocess(s, "nwxor")[1]  # real-valued weights: any change of order would show
+    t = mask_to_runs(pyramid(_person(arm=2.0, dx=9))[1])
+    rs = RunSet([t])
+    tr = np.stack([rng.uniform(-90, 90, 60), rng.uniform(-70, 70, 60), rng.uniform(0.6, 1.5, 60)], axis=1)
+    tr[0] = (0.0, 0.0, 1.0)
+    got = np.empty(len(tr))
+    eval_runs_kernel(feats.integral, rs.data, rs.ptr, np.zeros(len(tr), np.int64), tr, 80.0, 60.0, 5.0, got)
+    want = _plain_run_sums(feats.integral, t, tr, 80.0, 60.0, 5.0)
+    inside = (np.abs(tr[:, 0]) < 20) & (np.abs(tr[:, 1]) < 10)
+    assert inside.any() and (~inside).any()  # both of the kernel's paths are exercised
+    np.testing.assert_array_equal(got, want)

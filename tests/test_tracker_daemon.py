@@ -19,6 +19,7 @@ from protocol.keys import body_key, pose_key, status_key
 from protocol.messages import BodyInfo, PoseFrame, TrackerStatus
 from protocol.session import build_config, free_tcp_endpoint
 from protocol.skeleton import JOINT_INDEX
+from tracker_service.pipeline import TrackerConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "protocol" / "scripts" / "crouch.toml"
@@ -120,3 +121,5 @@ def test_eval_prints_the_json_contract(small_db) -> None:  # type: ignore[no-unt
     assert set(out["ms_per_frame"]) == {"preprocess", "estimate", "total"}
     assert out["mpjpe_cm"] is not None and 0 < out["mpjpe_cm"] < 100
     assert len(out["distance_evals_per_level"]) == 3
+    # steady-state timing starts after the frame that ends initialisation (which may score bodies)
+    assert out["steady_frames"] == out["tracked_frames"] - TrackerConfig().init_frames

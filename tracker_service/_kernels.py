@@ -62,11 +62,62 @@ def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float,
     return kept[:nk].copy(), cover
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _runs_sum(integral: NDArray[np.float64], data: NDArray[np.int16], r0: int, r1: int, dx: float, dy: float,
+              s: float, cx: float, cy: float, outside_cost: float) -> float:
+    """Sum of ``A`` under runs ``data[r0:r1]`` placed at ``(dx, dy, s)`` (eq. 12; see
+    :func:`eval_runs_kernel`). Indices are passed unsigned where they are known to be inside the
+    arrays (no wrap-around test), a row's first target row is the previous row's end when the rows
+    are consecutive (the same expression, so the same integer) and a run inside the image skips the
+    outside term (which is ``+0.0`` there): the sums are bit-identical to the plain form."""
+    h = integral.shape[0]
+    w = integral.shape[1] - 1
+    acc = 0.0
+    y_prev = -1
+    ya = 0
+    yb = 0
+    for r in range(r0, r1):
+        ur = np.uint64(r)
+        y = data[ur, 0]
+        if y != y_prev:
+            if y == y_prev + 1 and y_prev >= 0:
+                ya = yb
+            else:
+                ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+            y_prev = y
+        xl = int(np.floor(cx + dx + s * (data[ur, 1] - cx) + 0.5))
+        xr = int(np.floor(cx + dx + s * (data[ur, 2] - cx) + 0.5))
+        if xr <= xl:
+            continue
+        cl = min(max(xl, 0), w)
+        cr = min(max(xr, 0), w)
+        if cl == xl and cr == xr and ya >= 0 and yb <= h:  # inside the image (the common case)
+            ucl = np.uint64(cl)
+            ucr = np.uint64(cr)
+            for yy in range(ya, yb):
+                uy = np.uint64(yy)
+                acc += integral[uy, ucr] - integral[uy, ucl]
+            continue
+        for yy in range(ya, yb):
+            if yy < 0 or yy >= h:
+                acc += outside_cost * (xr - xl)
+            else:
+                acc += integral[yy, cr] - integral[yy, cl] + outside_cost * ((xr - xl) - (cr - cl))
+    return acc
+
+
 @njit(cache=True, nogil=True)
 def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
                      ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
                      outside_cost: float, out: NDArray[np.float64]) -> None:
     """Sum of ``A`` under transformed templates from a horizontal integral image (eq. 12).
+
+    A run ``(y, x0, x1)`` placed at ``(dx, dy, s)`` covers rows
+    ``[floor(cy + dy + s (y - cy) + 0.5), floor(cy + dy + s (y + 1 - cy) + 0.5))`` and columns
+    ``[floor(cx + dx + s (x0 - cx) + 0.5), floor(cx + dx + s (x1 - cx) + 0.5))``; each covered row
+    adds ``integral[row, right] - integral[row, left]``, and each template pixel outside the image
+    ``outside_cost``.
 
     Parameters
     ----------
@@ -87,38 +138,20 @@ def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr
     out : (M,) float64
         Written with the sums (without the constant ``B`` and the ``1/|w|`` factor).
     """
-    h = integral.shape[0]
-    w = integral.shape[1] - 1
     for m in range(ids.shape[0]):
         t = ids[m]
-        dx = transforms[m, 0]
-        dy = transforms[m, 1]
-        s = transforms[m, 2]
-        acc = 0.0
-        for r in range(ptr[t], ptr[t + 1]):
-            y = data[r, 0]
-            ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
-            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
-            xl = int(np.floor(cx + dx + s * (data[r, 1] - cx) + 0.5))
-            xr = int(np.floor(cx + dx + s * (data[r, 2] - cx) + 0.5))
-            if xr <= xl:
-                continue
-            cl = min(max(xl, 0), w)
-            cr = min(max(xr, 0), w)
-            for yy in range(ya, yb):
-                if yy < 0 or yy >= h:
-                    acc += outside_cost * (xr - xl)
-                else:
-                    acc += integral[yy, cr] - integral[yy, cl] + outside_cost * ((xr - xl) - (cr - cl))
-        out[m] = acc
+        out[m] = _runs_sum(integral, data, ptr[t], ptr[t + 1], transforms[m, 0], transforms[m, 1],
+                           transforms[m, 2], cx, cy, outside_cost)
 
 
 @njit(cache=True, nogil=True)
 def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
                           ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
                           outside_cost: float, out: NDArray[np.float64]) -> None:
-    """:func:`eval_runs_kernel` for a grid of placements per template: each template's runs are
-    read once for all its ``G`` placements (the coarse levels' search grids). Same arithmetic.
+    """:func:`eval_runs_kernel` for a grid of ``G`` placements per template (the coarse levels'
+    search grids). Bit-identical sums: with ``G`` = 1 it is :func:`_runs_sum`; with a grid, each
+    template's runs are read once and every run is placed at all ``G`` placements (a row's target
+    rows once per placement), with :func:`_runs_sum`'s shortcuts.
 
     Parameters
     ----------
@@ -130,9 +163,15 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
         Written with the sums.
     Other parameters as :func:`eval_runs_kernel`.
     """
+    g_n = transforms.shape[1]
+    if g_n == 1:  # one accumulator in a register
+        for m in range(ids.shape[0]):
+            t = ids[m]
+            out[m, 0] = _runs_sum(integral, data, ptr[t], ptr[t + 1], transforms[m, 0, 0], transforms[m, 0, 1],
+                                  transforms[m, 0, 2], cx, cy, outside_cost)
+        return
     h = integral.shape[0]
     w = integral.shape[1] - 1
-    g_n = transforms.shape[1]
     acc = np.empty(g_n)
     ya_g = np.empty(g_n, np.int64)
     yb_g = np.empty(g_n, np.int64)
@@ -142,14 +181,18 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
             acc[g] = 0.0
         y_prev = -1
         for r in range(ptr[t], ptr[t + 1]):
-            y = data[r, 0]
-            x0 = data[r, 1]
-            x1 = data[r, 2]
-            if y != y_prev:  # a row's runs are consecutive: its target rows once per placement
+            ur = np.uint64(r)
+            y = data[ur, 0]
+            x0 = data[ur, 1]
+            x1 = data[ur, 2]
+            if y != y_prev:
                 for g in range(g_n):
                     dy = transforms[m, g, 1]
                     s = transforms[m, g, 2]
-                    ya_g[g] = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+                    if y == y_prev + 1 and y_prev >= 0:
+                        ya_g[g] = yb_g[g]
+                    else:
+                        ya_g[g] = int(np.floor(cy + dy + s * (y - cy) + 0.5))
                     yb_g[g] = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
                 y_prev = y
             for g in range(g_n):
@@ -163,6 +206,15 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
                     continue
                 cl = min(max(xl, 0), w)
                 cr = min(max(xr, 0), w)
+                if cl == xl and cr == xr and ya >= 0 and yb <= h:
+                    ucl = np.uint64(cl)
+                    ucr = np.uint64(cr)
+                    a = acc[g]
+                    for yy in range(ya, yb):
+                        uy = np.uint64(yy)
+                        a += integral[uy, ucr] - integral[uy, ucl]
+                    acc[g] = a
+                    continue
                 for yy in range(ya, yb):
                     if yy < 0 or yy >= h:
                         acc[g] += outside_cost * (xr - xl)

@@ -149,6 +149,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         streak = 0
         for i in range(n):
             fr = scene.frame(i)
+            was_tracking = state.phase == "tracking"  # the frame that ends initialisation scores the bodies
             state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
             if not fr.truth.present:
                 continue
@@ -161,7 +162,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             errs.append(e)
             root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
             errs2d.append(float(np.linalg.norm(loaded.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
-            if res.phase == "tracking":  # steady state; initialisation (body selection) is timed apart
+            if was_tracking and res.phase == "tracking":  # steady state; initialisation (body selection) apart
                 t_pre.append(res.stage_ms.get("preprocess", 0.0) + res.stage_ms.get("background", 0.0))
                 t_est.append(res.stage_ms.get("estimate", 0.0))
                 t_tot.append(res.stage_ms.get("total", 0.0))
@@ -205,6 +206,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         "fps": round(1000.0 / total_ms, 1) if t_tot else None,
         "ms_per_frame": {"preprocess": _stats(t_pre), "estimate": _stats(t_est), "total": _stats(t_tot)},
         "initialisation_ms": round(init_ms, 1),
+        "steady_frames": len(t_tot),
         "distance_evals_per_level": [round(float(x), 1) for x in lvl.mean(axis=0)] if len(lvl) else [],
         "templates": int(loaded.db.n_leaves),
         "tree_levels": [int(s) for s in loaded.db.tree.level_sizes],

@@ -248,6 +248,16 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
             _move(x, j, -wj * c, dx, dy, dz, contact)
 
 
+@_inline
+def _touching(contact: F64, i: np.uint64) -> bool:  # pragma: no cover
+    """Whether particle ``i`` rests on any surface (a nonzero normal in ``contact[i]``); when not,
+    :func:`_tangent` is the identity and :func:`_move` a plain add."""
+    touching = False
+    for o in range(6):
+        touching = touching or contact[i, o] != 0.0
+    return touching
+
+
 @_jit
 def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float, max_compression: float,
                contact: F64) -> None:  # pragma: no cover
@@ -262,6 +272,12 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
     nearly along a contact normal is solved in one pass by the slide (its diagonal entry is
     ``w (1 - (u . n)^2)``, floored at :data:`SLIDE_FLOOR` of ``w``) instead of only its tangential
     share of it; the moves are ``W P J^T lambda`` (and never into a touched surface).
+
+    Particle indices are used unsigned (``np.uint64``: no wrap-around test on each access); a line
+    without an active spring is skipped, an inactive spring's row of the system is the identity
+    (``cp = dp = 0``, as ``0 / 1`` gives), the off-diagonal entry shared by rows ``k`` and ``k + 1``
+    is computed once, a particle that touches nothing skips the projections (the identity then) and
+    one next to no active spring the move (zero): the same numbers as the plain form.
     """
     m = lines.shape[1]
     nx = np.empty((m, 3))
@@ -272,64 +288,69 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
     lam = np.zeros(m)
     for ln in range(lines.shape[0]):
         row = lines[ln]
+        any_active = False
         for k in range(m - 1):
-            i, j = row[k], row[k + 1]
+            i, j = np.uint64(row[k]), np.uint64(row[k + 1])
             dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
             length = math.sqrt(dx * dx + dy * dy + dz * dz)
             hi = rest[ln, k] * (1.0 + max_stretch)
             lo = rest[ln, k] * (1.0 - max_compression)
             w = inv_mass[i] + inv_mass[j]
-            act[k] = (length > hi or length < lo) and length > 1e-12 and w > 0.0
-            if act[k]:
+            active = (length > hi or length < lo) and length > 1e-12 and w > 0.0
+            act[k] = active
+            if active:
+                any_active = True
                 nx[k, 0], nx[k, 1], nx[k, 2] = dx / length, dy / length, dz / length
                 cons[k] = length - (hi if length > hi else lo)
-        any_active = False
+        if not any_active:
+            continue
+        c = 0.0  # row k - 1's upper off-diagonal entry: row k's lower one (the same expression)
         for k in range(m - 1):  # forward elimination
-            if act[k]:
-                any_active = True
-                wi, wj = inv_mass[row[k]], inv_mass[row[k + 1]]
-                # J W P J^T: each end only moves in the tangent space of the surfaces it touches
-                b = (wi * _tangent_dot(contact, row[k], nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2])
-                     + wj * _tangent_dot(contact, row[k + 1], nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1],
-                                         nx[k, 2]))
-                b = max(b, SLIDE_FLOOR * (wi + wj))
-                d = -cons[k]
-            else:
-                b = 1.0
-                d = 0.0
-            if k > 0 and act[k] and act[k - 1]:
-                dot = _tangent_dot(contact, row[k], nx[k - 1, 0], nx[k - 1, 1], nx[k - 1, 2], nx[k, 0], nx[k, 1],
-                                   nx[k, 2])
-                a = -inv_mass[row[k]] * dot
+            if not act[k]:
+                cp[k] = 0.0
+                dp[k] = 0.0
+                continue
+            i, j = np.uint64(row[k]), np.uint64(row[k + 1])
+            wi, wj = inv_mass[i], inv_mass[j]
+            # J W P J^T: each end only moves in the tangent space of the surfaces it touches
+            b = (wi * _tangent_dot(contact, i, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2])
+                 + wj * _tangent_dot(contact, j, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2]))
+            b = max(b, SLIDE_FLOOR * (wi + wj))
+            d = -cons[k]
+            if k > 0 and act[k - 1]:
+                a = c
                 denom = b - a * cp[k - 1]
                 d -= a * dp[k - 1]
             else:
                 denom = b
-            if k + 1 < m - 1 and act[k] and act[k + 1]:
-                dot = _tangent_dot(contact, row[k + 1], nx[k, 0], nx[k, 1], nx[k, 2], nx[k + 1, 0], nx[k + 1, 1],
-                                   nx[k + 1, 2])
-                c = -inv_mass[row[k + 1]] * dot
+            if k + 1 < m - 1 and act[k + 1]:
+                dot = _tangent_dot(contact, j, nx[k, 0], nx[k, 1], nx[k, 2], nx[k + 1, 0], nx[k + 1, 1], nx[k + 1, 2])
+                c = -inv_mass[j] * dot
             else:
                 c = 0.0
             cp[k] = c / denom
             dp[k] = d / denom
-        if not any_active:
-            continue
         lam[m - 2] = dp[m - 2]
         for k in range(m - 3, -1, -1):  # back substitution
             lam[k] = dp[k] - cp[k] * lam[k + 1]
         for k in range(m):
+            left = k > 0 and act[k - 1]
+            right = k < m - 1 and act[k]
+            if not (left or right):
+                continue  # no active spring at this particle: no move
             mx = my = mz = 0.0
-            if k > 0 and act[k - 1]:
+            if left:
                 mx += lam[k - 1] * nx[k - 1, 0]
                 my += lam[k - 1] * nx[k - 1, 1]
                 mz += lam[k - 1] * nx[k - 1, 2]
-            if k < m - 1 and act[k]:
+            if right:
                 mx -= lam[k] * nx[k, 0]
                 my -= lam[k] * nx[k, 1]
                 mz -= lam[k] * nx[k, 2]
-            mx, my, mz = _tangent(contact, row[k], mx, my, mz)  # the move the system was solved for
-            _move(x, row[k], inv_mass[row[k]], mx, my, mz, contact)
+            i = np.uint64(row[k])
+            if _touching(contact, i):
+                mx, my, mz = _tangent(contact, i, mx, my, mz)  # the move the system was solved for
+            _move(x, i, inv_mass[i], mx, my, mz, contact)
 
 
 @_jit
@@ -347,7 +368,8 @@ def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float,
     every frame whose ring is too short for the body: the back centre of a skirt over a pelvis
     tilted by a bow). Ties go to the first such spring (the numpy reference computes the same
     ratios, but rounding may break a near-tie differently). Rings must not share particles; the
-    rotated rings ``(R, m)`` are gathered into work arrays (two small allocations per call).
+    rotated rings ``(R, m)`` are gathered into work arrays (two small allocations per call; indices
+    wrap by a compare, not a modulo).
     """
     n_rings, m = rings.shape
     if n_rings == 0:
@@ -357,17 +379,21 @@ def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float,
     for ln in range(n_rings):
         cut = 0
         slack = np.inf
+        i = np.uint64(rings[ln, 0])
         for k in range(m):
-            i, j = rings[ln, k], rings[ln, (k + 1) % m]
+            j = np.uint64(rings[ln, k + 1 if k + 1 < m else 0])
             dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
             ratio = math.sqrt(dx * dx + dy * dy + dz * dz) / rest[ln, k]
             if ratio < slack:
                 slack = ratio
                 cut = k
+            i = j
+        src = cut + 1 if cut + 1 < m else 0
         for k in range(m):
-            rows[ln, k] = rings[ln, (cut + 1 + k) % m]
-        for k in range(m - 1):
-            rows_rest[ln, k] = rest[ln, (cut + 1 + k) % m]
+            rows[ln, k] = rings[ln, src]
+            if k < m - 1:
+                rows_rest[ln, k] = rest[ln, src]
+            src = src + 1 if src + 1 < m else 0
     line_limit(x, inv_mass, rows, rows_rest, max_stretch, max_compression, contact)
 
 

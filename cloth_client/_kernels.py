@@ -8,7 +8,17 @@ collision response, penetration - the contact kernels themselves live in
 kernels work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps`
 runs all substeps of one cloth step without returning to Python. Small helpers called per particle
 or per spring are compiled inline into their callers (a call with array arguments costs more than
-the work they do).
+the work they do); in hot loops they take numbers rather than arrays where they can (an array
+handed to an inlined helper with branches or loops costs an atomic reference-count increment and
+decrement per call, as much as the arithmetic of a particle).
+
+Speed-ups are kept bit-identical (re-running the quality sweep is expensive), which takes more than
+the same formulas: with the ``contract`` and ``reassoc`` fast-math flags of :data:`jit_kernel`,
+a product and the sum using it become one FMA only when both are in one basic block, and the order
+in which a sum of products is added may follow the order in which its operands were defined (loads
+in a loop body, loop-carried values). Hence the shapes kept below: moves multiplied before the
+branch that adds them, contact normals read inside :func:`_slide`'s loop. Compare any change bitwise
+with the previous kernels, on particles with two contact normals too.
 """
 
 from __future__ import annotations
@@ -153,22 +163,39 @@ def long_range_attach(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:  
             x[i, 2] = x[a, 2] + s * dz
 
 
+#: The two contact normals of one particle, ``contact[i, 0:3]`` and ``contact[i, 3:6]``.
+Normals = tuple[float, float, float, float, float, float]
+
+
 @_inline
-def _move(x: F64, i: int, w: float, dx: float, dy: float, dz: float, contact: F64) -> None:  # pragma: no cover
-    """``x[i] += w * d``, less any component of the move into the surfaces particle ``i`` touches.
+def _normals(contact: F64, i: np.uint64) -> Normals:  # pragma: no cover
+    """Row ``i`` of ``contact (N, 6)``: the (up to two) unit normals particle ``i`` touches.
+
+    :func:`_touching` and :func:`_tangent` take these six numbers instead of the array: an array
+    handed to an inlined helper with branches costs a reference-count increment and decrement per
+    call (more than the arithmetic of an untouched particle)."""
+    return contact[i, 0], contact[i, 1], contact[i, 2], contact[i, 3], contact[i, 4], contact[i, 5]
+
+
+@_inline
+def _touching(n: Normals) -> bool:  # pragma: no cover
+    """Whether a particle rests on any surface (a nonzero normal); when not, :func:`_tangent` and
+    :func:`_slide` are the identity."""
+    return n[0] != 0.0 or n[1] != 0.0 or n[2] != 0.0 or n[3] != 0.0 or n[4] != 0.0 or n[5] != 0.0
+
+
+@_inline
+def _slide(contact: F64, i: np.uint64, w: float, dx: float, dy: float,
+           dz: float) -> tuple[float, float, float]:  # pragma: no cover
+    """The move ``w * d`` of particle ``i`` less any component of it into the surfaces it touches.
 
     ``contact[i]`` holds up to two unit normals (``[0:3]`` and ``[3:6]``, zero when unused); with
     two (a crease between body parts) the move is projected alternately until it points into
-    neither surface, so pinched cloth slides along the crease."""
+    neither surface, so pinched cloth slides along the crease. Callers use it for touching
+    particles only (see :func:`_touching`; the move of the others is ``w * d``), then add the move
+    to ``x[i]``. (The loop reads the normals from the array, as the single helper it replaces did:
+    taken as numbers, its dot products were summed in another order.)"""
     mx, my, mz = w * dx, w * dy, w * dz
-    touching = False
-    for o in range(6):
-        touching = touching or contact[i, o] != 0.0
-    if not touching:
-        x[i, 0] += mx
-        x[i, 1] += my
-        x[i, 2] += mz
-        return
     for _ in range(3):
         done = True
         for o in (0, 3):
@@ -180,17 +207,15 @@ def _move(x: F64, i: int, w: float, dx: float, dy: float, dz: float, contact: F6
                 done = False
         if done:
             break
-    x[i, 0] += mx
-    x[i, 1] += my
-    x[i, 2] += mz
+    return mx, my, mz
 
 
 @_inline
-def _tangent(contact: F64, i: int, mx: float, my: float, mz: float) -> tuple[float, float, float]:  # pragma: no cover
-    """``P m``: ``m`` less its components along the (up to two) normals particle ``i`` touches
-    (the projector of :func:`_tangent_dot`)."""
-    n2x, n2y, n2z = contact[i, 3], contact[i, 4], contact[i, 5]
-    n1x, n1y, n1z = contact[i, 0], contact[i, 1], contact[i, 2]
+def _tangent(n: Normals, mx: float, my: float, mz: float) -> tuple[float, float, float]:  # pragma: no cover
+    """``P m``: ``m`` less its components along the (up to two) contact normals ``n`` (the
+    projector of :func:`_tangent_dot`)."""
+    n2x, n2y, n2z = n[3], n[4], n[5]
+    n1x, n1y, n1z = n[0], n[1], n[2]
     if n1x * n1x + n1y * n1y + n1z * n1z > 0.5:
         q = mx * n1x + my * n1y + mz * n1z
         mx, my, mz = mx - q * n1x, my - q * n1y, mz - q * n1z
@@ -206,11 +231,11 @@ def _tangent(contact: F64, i: int, mx: float, my: float, mz: float) -> tuple[flo
 
 
 @_inline
-def _tangent_dot(contact: F64, i: int, ax: float, ay: float, az: float, bx: float, by: float,
+def _tangent_dot(n: Normals, ax: float, ay: float, az: float, bx: float, by: float,
                  bz: float) -> float:  # pragma: no cover
     """``a . P b`` with ``P`` the orthogonal projector onto the tangent space of the (up to two)
-    surfaces particle ``i`` touches (``a . b`` when it touches none)."""
-    px, py, pz = _tangent(contact, i, bx, by, bz)
+    surfaces of normals ``n`` (``a . b`` when there are none)."""
+    px, py, pz = _tangent(n, bx, by, bz)
     return ax * px + ay * py + az * pz
 
 
@@ -226,8 +251,8 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
     for it in range(iterations):
         for k in range(n_springs):
             s = k if it % 2 == 0 else n_springs - 1 - k  # symmetric Gauss-Seidel: alternate sweeps
-            i = springs[s, 0]
-            j = springs[s, 1]
+            i = np.uint64(springs[s, 0])  # unsigned: no wrap-around test on each access
+            j = np.uint64(springs[s, 1])
             dx = x[j, 0] - x[i, 0]
             dy = x[j, 1] - x[i, 1]
             dz = x[j, 2] - x[i, 2]
@@ -244,18 +269,22 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
             if wsum <= 0.0 or length < 1e-12:
                 continue
             c = (length - target) / (length * wsum)
-            _move(x, i, wi * c, dx, dy, dz, contact)
-            _move(x, j, -wj * c, dx, dy, dz, contact)
-
-
-@_inline
-def _touching(contact: F64, i: np.uint64) -> bool:  # pragma: no cover
-    """Whether particle ``i`` rests on any surface (a nonzero normal in ``contact[i]``); when not,
-    :func:`_tangent` is the identity and :func:`_move` a plain add."""
-    touching = False
-    for o in range(6):
-        touching = touching or contact[i, o] != 0.0
-    return touching
+            w = wi * c
+            if _touching(_normals(contact, i)):
+                mx, my, mz = _slide(contact, i, w, dx, dy, dz)
+            else:
+                mx, my, mz = w * dx, w * dy, w * dz
+            x[i, 0] += mx
+            x[i, 1] += my
+            x[i, 2] += mz
+            w = -wj * c
+            if _touching(_normals(contact, j)):
+                mx, my, mz = _slide(contact, j, w, dx, dy, dz)
+            else:
+                mx, my, mz = w * dx, w * dy, w * dz
+            x[j, 0] += mx
+            x[j, 1] += my
+            x[j, 2] += mz
 
 
 @_jit
@@ -312,9 +341,10 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
                 continue
             i, j = np.uint64(row[k]), np.uint64(row[k + 1])
             wi, wj = inv_mass[i], inv_mass[j]
+            ni, nj = _normals(contact, i), _normals(contact, j)
             # J W P J^T: each end only moves in the tangent space of the surfaces it touches
-            b = (wi * _tangent_dot(contact, i, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2])
-                 + wj * _tangent_dot(contact, j, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2]))
+            b = (wi * _tangent_dot(ni, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2])
+                 + wj * _tangent_dot(nj, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2]))
             b = max(b, SLIDE_FLOOR * (wi + wj))
             d = -cons[k]
             if k > 0 and act[k - 1]:
@@ -324,7 +354,7 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
             else:
                 denom = b
             if k + 1 < m - 1 and act[k + 1]:
-                dot = _tangent_dot(contact, j, nx[k, 0], nx[k, 1], nx[k, 2], nx[k + 1, 0], nx[k + 1, 1], nx[k + 1, 2])
+                dot = _tangent_dot(nj, nx[k, 0], nx[k, 1], nx[k, 2], nx[k + 1, 0], nx[k + 1, 1], nx[k + 1, 2])
                 c = -inv_mass[j] * dot
             else:
                 c = 0.0
@@ -348,9 +378,16 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
                 my -= lam[k] * nx[k, 1]
                 mz -= lam[k] * nx[k, 2]
             i = np.uint64(row[k])
-            if _touching(contact, i):
-                mx, my, mz = _tangent(contact, i, mx, my, mz)  # the move the system was solved for
-            _move(x, i, inv_mass[i], mx, my, mz, contact)
+            w = inv_mass[i]
+            n = _normals(contact, i)
+            if _touching(n):
+                mx, my, mz = _tangent(n, mx, my, mz)  # the move the system was solved for
+                mx, my, mz = _slide(contact, i, w, mx, my, mz)
+            else:
+                mx, my, mz = w * mx, w * my, w * mz
+            x[i, 0] += mx
+            x[i, 1] += my
+            x[i, 2] += mz
 
 
 @_jit

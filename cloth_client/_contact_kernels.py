@@ -42,6 +42,10 @@ CREASE_COS = 0.0
 PINCH_DEPTH = 0.009
 #: Columns of the per-capsule geometry table built by :func:`capsule_geometry`.
 _GEO_COLS = 13
+#: Further columns of :func:`collide`'s table: the capsule's centre (3), the motion of its ends over
+#: the substep (``a1 - a0``, ``b1 - b0``) and ``max(ra, rb)``.
+_CENTRE, _DA, _DB, _RMAX = 13, 16, 19, 22
+_COLLIDE_COLS = 23
 #: A particle closer than the clearance by less than this (metres) counts as on the surface, not in
 #: contact (a projected particle re-measured at the clearance must not trigger another pass).
 HIT_TOLERANCE = 1e-9
@@ -190,11 +194,13 @@ def _push(x: F64, v: F64, i: int, push: float, nx: float, ny: float, nz: float,
 
 
 @_inline
-def _friction(v: F64, i: int, n: F64, vs: F64, dvn: float, friction: float) -> None:  # pragma: no cover
-    """Coulomb friction: reduce the tangential velocity relative to the surface by ``friction * dvn``."""
-    rx, ry, rz = v[i, 0] - vs[0], v[i, 1] - vs[1], v[i, 2] - vs[2]
-    vn = rx * n[0] + ry * n[1] + rz * n[2]
-    tx, ty, tz = rx - vn * n[0], ry - vn * n[1], rz - vn * n[2]
+def _friction(v: F64, i: int, nx: float, ny: float, nz: float, vsx: float, vsy: float, vsz: float, dvn: float,
+              friction: float) -> None:  # pragma: no cover
+    """Coulomb friction: reduce the tangential velocity relative to the surface (normal ``n``, moving
+    at ``vs``) by ``friction * dvn``."""
+    rx, ry, rz = v[i, 0] - vsx, v[i, 1] - vsy, v[i, 2] - vsz
+    vn = rx * nx + ry * ny + rz * nz
+    tx, ty, tz = rx - vn * nx, ry - vn * ny, rz - vn * nz
     vt = math.sqrt(tx * tx + ty * ty + tz * tz)
     if vt <= 1e-12:
         return
@@ -236,18 +242,19 @@ def pinch_margin(px: float, py: float, pz: float, geo: F64, centre: F64, margin:
 
 
 @_inline
-def _side(x: F64, i: int, d: float, nx: float, ny: float, nz: float, t: float, geo: F64, c: int, a0: F64, b0: F64,
-          a1: F64, b1: F64, xprev: F64) -> tuple[float, float, float, float, float]:  # pragma: no cover
+def _side(x: F64, i: int, d: float, nx: float, ny: float, nz: float, t: float, geo: F64, c: int, qx: float,
+          qy: float, qz: float) -> tuple[float, float, float, float, float]:  # pragma: no cover
     """Keep particle ``i`` on the side of capsule ``c`` it came from.
 
-    ``xprev[i]`` (the particle at the start of the substep) is carried along with the capsule's
-    motion; if that point is outside the capsule and its normal faces away from ``n`` (the normal
-    of the nearest surface to the particle, inside the capsule), the particle went through the axis
-    within the substep (a limb pressed into cloth the strain limit holds back): it is put back at
-    the carried point and the distance, normal and axial parameter there are returned instead."""
-    qx = xprev[i, 0] + (1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])
-    qy = xprev[i, 1] + (1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])
-    qz = xprev[i, 2] + (1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])
+    ``q`` (the particle at the start of the substep) is carried along with the capsule's motion
+    (columns :data:`_DA`, :data:`_DB` of :func:`collide`'s table ``geo``); if that point is outside
+    the capsule and its normal faces away from ``n`` (the normal of the nearest surface to the
+    particle, inside the capsule), the particle went through the axis within the substep (a limb
+    pressed into cloth the strain limit holds back): it is put back at the carried point and the
+    distance, normal and axial parameter there are returned instead."""
+    qx = qx + (1.0 - t) * geo[c, _DA] + t * geo[c, _DB]
+    qy = qy + (1.0 - t) * geo[c, _DA + 1] + t * geo[c, _DB + 1]
+    qz = qz + (1.0 - t) * geo[c, _DA + 2] + t * geo[c, _DB + 2]
     dq, mx, my, mz, tq = round_cone_geo(qx, qy, qz, geo, c)
     if dq > 0.0 and mx * nx + my * ny + mz * nz < 0.0:
         x[i, 0], x[i, 1], x[i, 2] = qx, qy, qz
@@ -256,48 +263,55 @@ def _side(x: F64, i: int, d: float, nx: float, ny: float, nz: float, t: float, g
 
 
 @_inline
-def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b0: F64, a1: F64, b1: F64,
-             radii: F64, margin: float, friction: float, dt: float, floor: float, use_floor: bool, contact: F64,
-             scratch: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64) -> bool:  # pragma: no cover
+def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, margin: float, friction: float, dt: float, floor: float,
+             use_floor: bool, contact: F64, mask0: int, bx: float, by: float, bz: float, slack: float, qx: float,
+             qy: float, qz: float) -> bool:  # pragma: no cover
     """Projection passes of particle ``i`` with clearance ``m`` from the capsules (``margin`` from the
     floor), then friction or, if pinched, the stoutest touched part's velocity; True if pinched.
-    ``scratch (3, 3)``: normal, surface velocity, held velocity. Only the capsules in ``cand[i]``
-    are tested while the particle is within ``slack`` of ``xb[i]`` (every capsule otherwise).
-    A particle found past the capsule's axis from where it was at the start of the substep
-    (``xprev[i]`` carried along with the capsule) goes back to that side (:func:`_side`)."""
-    n_caps = a1.shape[0]
+    ``geo``: :func:`collide`'s per-capsule table. Only the capsules in ``mask0`` (the
+    particle's :func:`broad_phase` mask) are tested while the particle is within ``slack`` of ``b``
+    (where the mask was gathered; every capsule otherwise). A particle found past the capsule's axis
+    from ``q`` (where it was at the start of the substep) carried along with the capsule goes back
+    to that side (:func:`_side`).
+
+    Each array handed to an inlined helper with loops costs a reference-count increment and
+    decrement per call: the broad-phase data and the start position come in as numbers, the
+    capsules in one table. (The position and velocity stay in ``x``, ``v``: carried as numbers,
+    some dot products of them were summed in another order.)"""
+    n_caps = geo.shape[0]
     for o in range(6):
         contact[i, o] = 0.0
     first = -1
     pinched = False
     dvn = 0.0
     big = -1.0
+    fnx = fny = fnz = fvx = fvy = fvz = hvx = hvy = hvz = 0.0  # first normal, its surface's velocity, held
     for _ in range(COLLISION_PASSES):
         moved = False
-        ox, oy, oz = x[i, 0] - xb[i, 0], x[i, 1] - xb[i, 1], x[i, 2] - xb[i, 2]
-        mask = cand[i] if ox * ox + oy * oy + oz * oz <= slack * slack else ALL_CAPSULES
+        ox, oy, oz = x[i, 0] - bx, x[i, 1] - by, x[i, 2] - bz
+        mask = mask0 if ox * ox + oy * oy + oz * oz <= slack * slack else ALL_CAPSULES
         for c in range(n_caps):
             if c < 63 and (mask >> c) & 1 == 0:
                 continue
-            ex, ey, ez = x[i, 0] - centre[c, 0], x[i, 1] - centre[c, 1], x[i, 2] - centre[c, 2]
+            ex, ey, ez = x[i, 0] - geo[c, _CENTRE], x[i, 1] - geo[c, _CENTRE + 1], x[i, 2] - geo[c, _CENTRE + 2]
             if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
                 continue
             d, nx, ny, nz, t = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo, c)
             if d < m - HIT_TOLERANCE:
-                d, nx, ny, nz, t = _side(x, i, d, nx, ny, nz, t, geo, c, a0, b0, a1, b1, xprev)
-                vsx = ((1.0 - t) * (a1[c, 0] - a0[c, 0]) + t * (b1[c, 0] - b0[c, 0])) / dt
-                vsy = ((1.0 - t) * (a1[c, 1] - a0[c, 1]) + t * (b1[c, 1] - b0[c, 1])) / dt
-                vsz = ((1.0 - t) * (a1[c, 2] - a0[c, 2]) + t * (b1[c, 2] - b0[c, 2])) / dt
+                d, nx, ny, nz, t = _side(x, i, d, nx, ny, nz, t, geo, c, qx, qy, qz)
+                vsx = ((1.0 - t) * geo[c, _DA] + t * geo[c, _DB]) / dt
+                vsy = ((1.0 - t) * geo[c, _DA + 1] + t * geo[c, _DB + 1]) / dt
+                vsz = ((1.0 - t) * geo[c, _DA + 2] + t * geo[c, _DB + 2]) / dt
                 dv = _push(x, v, i, m - d, nx, ny, nz, vsx, vsy, vsz)
                 _record(contact, i, c, first, nx, ny, nz)
-                if max(radii[c, 0], radii[c, 1]) > big:  # the stoutest body part touched holds pinched cloth
-                    big = max(radii[c, 0], radii[c, 1])
-                    scratch[2, 0], scratch[2, 1], scratch[2, 2] = vsx, vsy, vsz
+                if geo[c, _RMAX] > big:  # the stoutest body part touched holds pinched cloth
+                    big = geo[c, _RMAX]
+                    hvx, hvy, hvz = vsx, vsy, vsz
                 if first < 0 or first == c:
                     first = c
                     dvn += dv
-                    scratch[0, 0], scratch[0, 1], scratch[0, 2] = nx, ny, nz
-                    scratch[1, 0], scratch[1, 1], scratch[1, 2] = vsx, vsy, vsz
+                    fnx, fny, fnz = nx, ny, nz
+                    fvx, fvy, fvz = vsx, vsy, vsz
                 else:
                     pinched = True
                 moved = True
@@ -307,17 +321,17 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, centre: F64, a0: F64, b
             if first < 0 or first == n_caps:
                 first = n_caps
                 dvn += dv
-                scratch[0, 0], scratch[0, 1], scratch[0, 2] = 0.0, 1.0, 0.0
-                scratch[1, 0], scratch[1, 1], scratch[1, 2] = 0.0, 0.0, 0.0
+                fnx, fny, fnz = 0.0, 1.0, 0.0
+                fvx, fvy, fvz = 0.0, 0.0, 0.0
             else:
                 pinched = True
             moved = True
         if not moved:
             break
     if first >= 0 and not pinched:
-        _friction(v, i, scratch[0], scratch[1], dvn, friction)
+        _friction(v, i, fnx, fny, fnz, fvx, fvy, fvz, dvn, friction)
     elif pinched and big > 0.0:
-        v[i, 0], v[i, 1], v[i, 2] = scratch[2, 0], scratch[2, 1], scratch[2, 2]
+        v[i, 0], v[i, 1], v[i, 2] = hvx, hvy, hvz
     return pinched
 
 
@@ -342,10 +356,15 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
     was with the clearance of :func:`pinch_margin` (half the gap, negative where the two overlap),
     so it fits in the gap; it keeps the velocity of the stoutest part of the first resolve (the
     second may touch only one of the two surfaces, whose friction would drag it along)."""
-    geo = np.empty((a1.shape[0], _GEO_COLS))
+    geo = np.empty((a1.shape[0], _COLLIDE_COLS))  # capsule_geometry's columns, then the ones of _resolve
     capsule_geometry(a1, b1, radii, margin, geo)
     centre = 0.5 * (a1 + b1)
-    scratch = np.empty((3, 3))
+    for c in range(a1.shape[0]):
+        for d in range(3):
+            geo[c, _CENTRE + d] = centre[c, d]
+            geo[c, _DA + d] = a1[c, d] - a0[c, d]
+            geo[c, _DB + d] = b1[c, d] - b0[c, d]
+        geo[c, _RMAX] = max(radii[c, 0], radii[c, 1])
     for i in range(x.shape[0]):
         ox, oy, oz = x[i, 0] - xb[i, 0], x[i, 1] - xb[i, 1], x[i, 2] - xb[i, 2]
         if active[i] <= 0.0 or (cand[i] == 0 and ox * ox + oy * oy + oz * oz <= slack * slack
@@ -355,16 +374,18 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
             continue
         px, py, pz = x[i, 0], x[i, 1], x[i, 2]
         ux, uy, uz = v[i, 0], v[i, 1], v[i, 2]
-        if not _resolve(x, v, i, margin, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor,
-                        use_floor, contact, scratch, cand, xb, slack, xprev):
+        mask, bx, by, bz = cand[i], xb[i, 0], xb[i, 1], xb[i, 2]
+        qx, qy, qz = xprev[i, 0], xprev[i, 1], xprev[i, 2]
+        if not _resolve(x, v, i, margin, geo, margin, friction, dt, floor, use_floor, contact, mask, bx, by, bz, slack,
+                        qx, qy, qz):
             continue
         m = pinch_margin(px, py, pz, geo, centre, margin)
         if m < margin:  # a crease: start again with the clearance the gap leaves
             hx, hy, hz = v[i, 0], v[i, 1], v[i, 2]  # the stoutest touched part's velocity
             x[i, 0], x[i, 1], x[i, 2] = px, py, pz
             v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
-            _resolve(x, v, i, m, geo, centre, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor,
-                     contact, scratch, cand, xb, slack, xprev)
+            _resolve(x, v, i, m, geo, margin, friction, dt, floor, use_floor, contact, mask, bx, by, bz, slack, qx, qy,
+                     qz)
             v[i, 0], v[i, 1], v[i, 2] = hx, hy, hz  # it is still in the crease, held by the stoutest part
 
 

@@ -9,6 +9,7 @@ from tracker_service.silhouette_distance import (
     evaluate_templates,
     evaluate_templates_reference,
     mask_to_runs,
+    placed_run,
     runs_to_mask,
 )
 
@@ -129,10 +130,7 @@ def _plain_run_sums(integral: np.ndarray, runs: np.ndarray, tr: np.ndarray, cx: 
     for m, (dx, dy, s) in enumerate(tr):
         acc = 0.0
         for y, x0, x1 in runs.astype(np.int64):
-            ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
-            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
-            xl = int(np.floor(cx + dx + s * (x0 - cx) + 0.5))
-            xr = int(np.floor(cx + dx + s * (x1 - cx) + 0.5))
+            ya, yb, xl, xr = placed_run(y, x0, x1, dx, dy, s, cx, cy)
             if xr <= xl:
                 continue
             cl, cr = min(max(xl, 0), w), min(max(xr, 0), w)

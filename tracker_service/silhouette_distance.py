@@ -31,6 +31,7 @@ __all__ = [
     "evaluate_templates",
     "evaluate_templates_reference",
     "mask_to_runs",
+    "placed_run",
     "runs_to_mask",
 ]
 
@@ -164,6 +165,17 @@ def evaluate_template_grid(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.
     return out
 
 
+def placed_run(y: int, x0: int, x1: int, dx: float, dy: float, s: float, cx: float,
+               cy: float) -> tuple[int, int, int, int]:
+    """Rows ``[ya, yb)`` and columns ``[xl, xr)`` a run ``(y, x0, x1)`` covers when its template is
+    placed at ``(dx, dy, s)`` about the centre ``(cx, cy)`` (the kernels' rounding, eq. 12)."""
+    ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+    yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+    xl = int(np.floor(cx + dx + s * (x0 - cx) + 0.5))
+    xr = int(np.floor(cx + dx + s * (x1 - cx) + 0.5))
+    return ya, yb, xl, xr
+
+
 def _transformed_mask(runs: NDArray[np.int16], shape: tuple[int, int], dx: float, dy: float, s: float,
                       cx: float, cy: float) -> tuple[NDArray[np.bool_], int]:
     """Rasterise transformed runs exactly as the kernel does; returns (mask, outside pixel count)."""
@@ -171,10 +183,7 @@ def _transformed_mask(runs: NDArray[np.int16], shape: tuple[int, int], dx: float
     m = np.zeros(shape, bool)
     outside = 0
     for y, x0, x1 in runs.astype(np.int64):
-        ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
-        yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
-        xl = int(np.floor(cx + dx + s * (x0 - cx) + 0.5))
-        xr = int(np.floor(cx + dx + s * (x1 - cx) + 0.5))
+        ya, yb, xl, xr = placed_run(y, x0, x1, dx, dy, s, cx, cy)
         for yy in range(ya, yb):
             if xr <= xl:
                 continue

@@ -269,6 +269,8 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
             if wsum <= 0.0 or length < 1e-12:
                 continue
             c = (length - target) / (length * wsum)
+            # the two ends written out: folded into a loop over (i, j), the compiled sums change
+            # bits (fast-math contraction; measured in session 9), which would void the sweep
             w = wi * c
             if _touching(_normals(contact, i)):
                 mx, my, mz = _slide(contact, i, w, dx, dy, dz)

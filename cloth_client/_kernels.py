@@ -446,11 +446,27 @@ def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
 
 
 @_jit
+def _worst_stretch2(x: F64, springs: I64, hi: F64) -> float:  # pragma: no cover
+    """Largest ``(l / hi)**2`` over ``springs``."""
+    worst = 0.0
+    for s in range(springs.shape[0]):
+        i = springs[s, 0]
+        j = springs[s, 1]
+        d0 = x[j, 0] - x[i, 0]
+        d1 = x[j, 1] - x[i, 1]
+        d2 = x[j, 2] - x[i, 2]
+        r = (d0 * d0 + d1 * d1 + d2 * d2) / (hi[s] * hi[s])
+        if r > worst:
+            worst = r
+    return worst
+
+
+@_jit
 def simulate_substeps(
     x: F64, v: F64, inv_mass: F64, springs: I64, rest: F64, k: F64, kd: F64, tris: I64,
     drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
     lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
-    lim_sweeps: int, final_sweeps: int, final_rounds: int,
+    lim_sweeps: int, final_sweeps: int, final_rounds: int, extra_rounds: int, extra_trigger2: float,
     anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
     max_stretch: float, max_compression: float,
     pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
@@ -510,7 +526,11 @@ def simulate_substeps(
                     cand, xb, BROAD_SLACK, xp)
         # final rounds: contact-aware strain limiting (contacts slide along the surfaces of the last
         # collision instead of into them), then collision (with final_rounds == 0: no collision after it)
-        for _r in range(max(final_rounds, 1)):
+        # then up to extra_rounds more while a structural spring is stretched beyond the trigger
+        rounds = max(final_rounds, 1)
+        for _r in range(rounds + extra_rounds):
+            if _r >= rounds and _worst_stretch2(x, lim_springs, lim_hi) <= extra_trigger2:
+                break
             for i in range(n):
                 for d in range(3):
                     f[i, d] = x[i, d]

@@ -40,7 +40,8 @@ if TYPE_CHECKING:
     from .cloth import ClothModel
 
 __all__ = ["drag_forces_np", "line_limit_np", "long_range_attach_np", "move_np", "ring_limit_np",
-           "spring_forces_np", "strain_limit_np", "substeps_np", "tangent_dot_np", "tangent_np"]
+           "spring_forces_np", "strain_limit_np", "substeps_np", "tangent_dot_np", "tangent_np",
+           "worst_stretch2_np"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -201,6 +202,13 @@ def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: i
         ring_limit_np(x, inv_mass, model.lines_s, model.rest_s, p.max_stretch, p.max_compression, contact)
 
 
+def worst_stretch2_np(x: F64, springs: I64, hi: F64) -> float:
+    """Largest ``(l / hi)**2`` over ``springs (L, 2)``, ``hi (L,)`` their upper length bounds (reference of
+    ``K._worst_stretch2``)."""
+    d = x[springs[:, 1]] - x[springs[:, 0]]
+    return float((np.einsum("ij,ij->i", d, d) / (hi * hi)).max(initial=0.0))
+
+
 def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,
                  n: int, dt_total: float, mass_damping: float, anchor: I64 | None = None,
                  reach: F64 | None = None) -> None:
@@ -210,6 +218,8 @@ def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, 
     dt = dt_total / n
     free = inv_mass > 0
     grav, wind = np.asarray(p.gravity), np.asarray(p.wind)
+    trigger2 = ((1.0 + p.extra_above) / (1.0 + p.max_stretch)) ** 2
+    extra = p.extra_rounds if p.final_rounds > 0 else 0
     for step_i in range(n):
         s0, s1 = step_i / n, (step_i + 1) / n
         f = spring_forces_np(x, v, model.springs, model.rest, model.k, model.kd)
@@ -230,7 +240,10 @@ def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, 
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 1, contact)
             v[free] = (x[free] - xp[free]) / dt
             collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact, xp)
-        for _ in range(max(p.final_rounds, 1)):
+        rounds = max(p.final_rounds, 1)
+        for r in range(rounds + extra):  # extra rounds while a structural spring is over extra_above
+            if r >= rounds and worst_stretch2_np(x, model.lim_springs, model.lim_hi) <= trigger2:
+                break
             before = x.copy()  # contact-aware: cloth on the body slides over it, not into it
             _line_pass(x, model, inv_mass, contact, p.final_sweeps)
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,

@@ -16,7 +16,7 @@ from cloth_client.avatar import (
     pose_keys,
     rigid_root_delta,
 )
-from cloth_client.cloth import build_model, initial_state, step, structural_strain, tethers_held
+from cloth_client.cloth import ClothParams, build_model, initial_state, step, structural_strain, tethers_held
 from cloth_client.collision import penetration_np
 from cloth_client.driver import ClothDriver, DriverConfig
 from cloth_client.garment import DEFAULT_DENSITY, grid_topology, make_cape, make_garment, make_skirt
@@ -240,7 +240,7 @@ def test_released_pins_hand_their_cloth_to_the_held_pins() -> None:
     (never tighter than its own attachment), so the released stretch does not sag and stretch under
     the skirt's weight."""
     g = make_skirt(BODY, 500)
-    model = build_model(g)
+    model = build_model(g, ClothParams(extra_rounds=0))  # the attachments alone, without the extra rounds
     none = np.zeros(len(g.pin_index), dtype=bool)
     anchor, reach = tethers_held(model, none)
     np.testing.assert_array_equal(anchor, g.anchor)
@@ -262,7 +262,8 @@ def test_released_pins_hand_their_cloth_to_the_held_pins() -> None:
             state = step(state, model, keys.track, pins, 1 / 60, released=released, tethers=tethers)
             worst[name] = max(worst[name], float(structural_strain(model, state.x).max()))
     # without them the released stretch sags (10-11 % before the final strain passes became
-    # contact-aware, 9.8 % since: cloth resting on the hips now slides instead of staying stretched)
+    # contact-aware, 9.8 % since: cloth resting on the hips now slides instead of staying stretched;
+    # the extra final rounds would hold it under 8 % too, at the cost of more rounds every substep)
     assert worst["held"] < 0.09 and worst["own"] > worst["held"] + 0.025
 
 

@@ -25,6 +25,7 @@ from cloth_client.reference import (
     ring_limit_np,
     spring_forces_np,
     strain_limit_np,
+    worst_stretch2_np,
 )
 from protocol.skeleton import default_body
 
@@ -145,6 +146,32 @@ def test_strain_limiting_keeps_a_heavy_cloth_short() -> None:
     assert results[1] <= tight.params.max_stretch + 0.01
 
 
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_extra_rounds_run_while_a_spring_is_stretched_beyond_the_trigger(backend: str) -> None:
+    """A hanging sheet whose pinned edge is jerked 30-50 cm along itself in one 60 Hz step of one or
+    two substeps: the fixed final rounds leave springs over ``extra_above`` (8 %); the extra rounds
+    run until every structural spring is within it, and are skipped when none is over."""
+    g = make_sheet(20, 12, 0.025)
+    worst, calm = [], []
+    for extra in (0, 4):
+        model = build_model(g, ClothParams(extra_rounds=extra, air_density=0.0))
+        state = initial_state(model)
+        for _ in range(60):
+            state = step(state, model, EMPTY, _pins(g), 1 / 60, backend=backend)
+        calm.append(step(state, model, EMPTY, _pins(g), 1 / 60, n_substeps=2, backend=backend).x)
+        strains = []
+        for shift in (0.3, 0.4, 0.5):
+            for n_sub in (1, 2):
+                jerk = _pins(g)
+                jerk[1] += [shift, 0.0, 0.0]
+                jerked = step(state, model, EMPTY, jerk, 1 / 60, n_substeps=n_sub, backend=backend)
+                strains.append(structural_strain(model, jerked.x).max())
+        worst.append(max(strains))
+    assert worst[0] > 0.09
+    assert worst[1] <= 0.08 + 1e-12
+    np.testing.assert_array_equal(calm[0], calm[1])  # nothing over the trigger: no extra round ran
+
+
 # --- numba kernels against the numpy references -----------------------------------------------------
 
 @pytest.fixture(scope="module", params=["cape", "skirt"])
@@ -201,6 +228,8 @@ def test_constraint_kernels_match_numpy(model, rng: np.random.Generator) -> None
     strain_limit_np(b, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 3, contact)
     np.testing.assert_allclose(a, b, atol=1e-12)
     assert np.abs(a - x).max() > 1e-3  # the test did exercise the constraints
+    assert K._worst_stretch2(x, model.lim_springs, model.lim_hi) == worst_stretch2_np(x, model.lim_springs,
+                                                                                     model.lim_hi) > 1.0
 
 
 def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]

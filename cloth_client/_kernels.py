@@ -85,15 +85,19 @@ _inline = inline_kernel
 SLIDE_FLOOR = 0.25
 
 
+@_inline
+def _spring_vector(x: F64, springs: I64, s: int) -> tuple[int, int, float, float, float]:  # pragma: no cover
+    """Ends ``i, j`` of spring ``s`` and the vector ``x[j] - x[i]``."""
+    i = springs[s, 0]
+    j = springs[s, 1]
+    return i, j, x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+
+
 @_jit
 def spring_forces(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64, f: F64) -> None:  # pragma: no cover
     """Add Hooke + axial damping forces of every spring to ``f (N, 3)``."""
     for s in range(springs.shape[0]):
-        i = springs[s, 0]
-        j = springs[s, 1]
-        dx = x[j, 0] - x[i, 0]
-        dy = x[j, 1] - x[i, 1]
-        dz = x[j, 2] - x[i, 2]
+        i, j, dx, dy, dz = _spring_vector(x, springs, s)
         length = math.sqrt(dx * dx + dy * dy + dz * dz)
         inv = 1.0 / length if length > 1e-12 else 0.0  # branch-free: a zero-length spring exerts nothing
         ux, uy, uz = dx * inv, dy * inv, dz * inv
@@ -450,11 +454,7 @@ def _worst_stretch2(x: F64, springs: I64, hi: F64) -> float:  # pragma: no cover
     """Largest ``(l / hi)**2`` over ``springs``."""
     worst = 0.0
     for s in range(springs.shape[0]):
-        i = springs[s, 0]
-        j = springs[s, 1]
-        d0 = x[j, 0] - x[i, 0]
-        d1 = x[j, 1] - x[i, 1]
-        d2 = x[j, 2] - x[i, 2]
+        _i, _j, d0, d1, d2 = _spring_vector(x, springs, s)
         r = (d0 * d0 + d1 * d1 + d2 * d2) / (hi[s] * hi[s])
         if r > worst:
             worst = r

@@ -168,7 +168,14 @@ def broad_phase(x: F64, active: F64, a: F64, b: F64, radii: F64, reach: float, c
         r = max(radii[c, 0], radii[c, 1]) + reach
         r2 = r * r
         bit = np.int64(1) << np.int64(c)
+        # the capsule's bounding box grown by r: a particle outside it is farther than r from the axis
+        lo0, hi0 = min(ax, b[c, 0]) - r, max(ax, b[c, 0]) + r
+        lo1, hi1 = min(ay, b[c, 1]) - r, max(ay, b[c, 1]) + r
+        lo2, hi2 = min(az, b[c, 2]) - r, max(az, b[c, 2]) + r
         for i in range(n):
+            if (x[i, 0] < lo0 or x[i, 0] > hi0 or x[i, 1] < lo1 or x[i, 1] > hi1
+                    or x[i, 2] < lo2 or x[i, 2] > hi2):
+                continue
             px, py, pz = x[i, 0] - ax, x[i, 1] - ay, x[i, 2] - az
             t = min(max((px * ux + py * uy + pz * uz) * inv, 0.0), 1.0)
             qx, qy, qz = px - t * ux, py - t * uy, pz - t * uz

@@ -456,7 +456,7 @@ def _worst_stretch2(x: F64, springs: I64, hi: F64) -> float:  # pragma: no cover
     for s in range(springs.shape[0]):
         _i, _j, d0, d1, d2 = _spring_vector(x, springs, s)
         r = (d0 * d0 + d1 * d1 + d2 * d2) / (hi[s] * hi[s])
-        if r > worst:
+        if not r <= worst:  # a NaN propagates, as in the numpy reference
             worst = r
     return worst
 
@@ -473,9 +473,13 @@ def simulate_substeps(
     margin: float, friction: float, floor: float, use_floor: bool, max_speed: float,
     n_sub: int, dt_total: float,
 ) -> None:  # pragma: no cover
-    """Advance ``x, v`` by ``dt_total`` in ``n_sub`` substeps (same sequence as ``cloth._substeps_np``).
+    """Advance ``x, v`` by ``dt_total`` in ``n_sub`` substeps (same sequence as
+    ``reference.substeps_np``).
 
-    ``pin_keys (K+1, P, 3)`` and ``cap_a, cap_b (K+1, C, 3)`` are sampled evenly over the step.
+    ``pin_keys (K+1, P, 3)`` and ``cap_a, cap_b (K+1, C, 3)`` are sampled evenly over the step. After
+    the ``final_rounds``, up to ``extra_rounds`` more run while the largest ``(l / lim_hi)**2`` of the
+    structural springs exceeds ``extra_trigger2`` (the caller passes ``extra_rounds = 0`` when
+    ``final_rounds`` is 0).
     """
     n = x.shape[0]
     dt = dt_total / n_sub

@@ -215,6 +215,9 @@ class ClothState:
 def build_model(garment: Garment, params: ClothParams | None = None) -> ClothModel:
     """Compile ``garment`` and ``params`` into a :class:`ClothModel` (also computes the stable substep)."""
     p = params or ClothParams()
+    if p.extra_rounds < 0 or not p.extra_above >= p.max_stretch:
+        raise ValueError(f"extra_rounds must be >= 0 and extra_above >= max_stretch ({p.max_stretch}), got "
+                         f"{p.extra_rounds} and {p.extra_above}")
     g = garment
     springs = np.concatenate([g.structural, g.shear, g.bend])
     rest = np.concatenate([g.structural_rest, g.shear_rest, g.bend_rest])

@@ -167,7 +167,7 @@ def test_extra_rounds_run_while_a_spring_is_stretched_beyond_the_trigger(backend
                 jerked = step(state, model, EMPTY, jerk, 1 / 60, n_substeps=n_sub, backend=backend)
                 strains.append(structural_strain(model, jerked.x).max())
         worst.append(max(strains))
-    assert worst[0] > 0.09
+    assert worst[0] > 0.085  # over the 8 % trigger without them
     assert worst[1] <= 0.08 + 1e-12
     np.testing.assert_array_equal(calm[0], calm[1])  # nothing over the trigger: no extra round ran
 
@@ -228,8 +228,9 @@ def test_constraint_kernels_match_numpy(model, rng: np.random.Generator) -> None
     strain_limit_np(b, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 3, contact)
     np.testing.assert_allclose(a, b, atol=1e-12)
     assert np.abs(a - x).max() > 1e-3  # the test did exercise the constraints
-    assert K._worst_stretch2(x, model.lim_springs, model.lim_hi) == worst_stretch2_np(x, model.lim_springs,
-                                                                                     model.lim_hi) > 1.0
+    worst = K._worst_stretch2(x, model.lim_springs, model.lim_hi)
+    assert worst > 1.0
+    np.testing.assert_allclose(worst, worst_stretch2_np(x, model.lim_springs, model.lim_hi), rtol=1e-12)
 
 
 def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
@@ -294,7 +295,7 @@ def test_whole_step_matches_numpy_reference() -> None:
     are active, a rounding-level difference can flip which ones are, so the kernels are compared
     one by one above; here the limits are wide enough to stay inactive while every code path runs.)"""
     g = make_cape(default_body(), 300)
-    model = build_model(g, ClothParams(floor=None, max_stretch=0.5, max_compression=0.5))
+    model = build_model(g, ClothParams(floor=None, max_stretch=0.5, max_compression=0.5, extra_above=0.5))
     rng = np.random.default_rng(7)
     state = initial_state(model, g.rest + rng.normal(0, 0.004, g.rest.shape))
     state.v[:] = rng.normal(0, 0.3, state.v.shape)
@@ -306,7 +307,7 @@ def test_whole_step_matches_numpy_reference() -> None:
     # with pins let go and the attachments moved to the held ones (every particle is tethered)
     released = np.zeros(len(g.pin_index), dtype=bool)
     released[:3] = True
-    tight = build_model(g, ClothParams(floor=None, max_stretch=0.5, max_compression=0.5))
+    tight = build_model(g, ClothParams(floor=None, max_stretch=0.5, max_compression=0.5, extra_above=0.5))
     tethers = tethers_held(tight, released)
     a = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4, backend="numba")
     b = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4, backend="numpy")
@@ -355,3 +356,7 @@ def test_bad_inputs_are_rejected() -> None:
         step(state, model, EMPTY, _pins(g)[:, :1], 0.01)
     with pytest.raises(ValueError, match="backend"):
         step(state, model, EMPTY, _pins(g), 0.01, backend="cuda")
+    with pytest.raises(ValueError, match="extra_above"):  # extra rounds would run on every substep
+        build_model(g, ClothParams(extra_above=0.01))
+    with pytest.raises(ValueError, match="extra_rounds"):
+        build_model(g, ClothParams(extra_rounds=-1))

@@ -263,7 +263,7 @@ def test_released_pins_hand_their_cloth_to_the_held_pins() -> None:
             worst[name] = max(worst[name], float(structural_strain(model, state.x).max()))
     # without them the released stretch sags (10-11 % before the final strain passes became
     # contact-aware, 9.8 % since: cloth resting on the hips now slides instead of staying stretched;
-    # the extra final rounds would hold it under 8 % too, at the cost of more rounds every substep)
+    # the extra final rounds, off here, would also pull it back, at the cost of more rounds per substep)
     assert worst["held"] < 0.09 and worst["own"] > worst["held"] + 0.025
 
 

@@ -13,9 +13,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
-           "PINCH_DEPTH", "broad_phase", "capsule_geometry", "clear_limbs", "collide", "covered", "inline_kernel",
-           "jit_kernel", "penetration", "pinch_margin", "round_cone", "round_cone_geo"]
+__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "CARRY_JUMP", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
+           "PINCH_DEPTH", "RELAX_RATE", "RELAX_STEPS", "broad_phase", "capsule_geometry",
+           "clear_limbs", "collide", "covered", "inline_kernel", "jit_kernel", "penetration", "pinch_margin",
+           "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -54,6 +55,14 @@ ALL_CAPSULES = -1
 #: Distance (metres) a particle may move from where its candidate capsules were gathered
 #: (:func:`broad_phase`) before :func:`collide` tests every capsule again for it.
 BROAD_SLACK = 0.02
+#: A limb correction (:func:`clear_limbs`) that moves a joint further than this (metres) from the
+#: previous key's correction is a flip of the nearest trunk surface, not a motion: the previous
+#: correction is carried over instead.
+CARRY_JUMP = 0.02
+#: Largest fraction of a carried-over correction given back to the recording per key, and the
+#: bisection steps that find how much of it keeps the limb clear.
+RELAX_RATE = 0.25
+RELAX_STEPS = 6
 
 
 @_jit
@@ -482,15 +491,71 @@ def _norm3(v: F64) -> float:  # pragma: no cover
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
+@_inline
+def _sunk(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArray[np.int64], geo: F64, s: F64,
+          clearance: float) -> bool:  # pragma: no cover
+    """Whether the forearm or the hand of ``chain`` is nearer the trunk than ``clearance``."""
+    return max(_deepest(a, b, radii, chain[1], trunk, geo, s, clearance)[0],
+               _deepest(a, b, radii, chain[2], trunk, geo, s, clearance)[0]) > 1e-6
+
+
+@_inline
+def _rebuild(a: F64, b: F64, chain: NDArray[np.int64], raw: F64, offset: F64, lam: float, lengths: F64,
+             tgt: F64) -> None:  # pragma: no cover
+    """Arm ``chain`` of one key set, in place, to its recorded joints ``raw`` (3, 3: elbow, wrist,
+    hand tip) moved by ``lam * offset`` (3, 3), each joint turned about its (moved) parent with
+    the bone ``lengths`` (3,) kept."""
+    up, fore, hand = chain[0], chain[1], chain[2]
+    tgt[:] = raw[0] + lam * offset[0]
+    _place(a[up], b[up], tgt, lengths[0])
+    a[fore] = b[up]
+    tgt[:] = raw[1] + lam * offset[1]
+    _place(a[fore], b[fore], tgt, lengths[1])
+    a[hand] = b[fore]
+    tgt[:] = raw[2] + lam * offset[2]
+    _place(a[hand], b[hand], tgt, lengths[2])
+
+
+@_jit
+def _arm_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArray[np.int64], geo: F64, s: F64,
+             clearance: float, max_push: float, iterations: int, n: F64, tgt: F64) -> None:  # pragma: no cover
+    """Rounds of pushes of the forearm, then the hand, of arm ``chain`` of one key out of the trunk
+    along the nearest surface's normal, in place (``n``, ``tgt``: (3,) scratch)."""
+    for _ in range(iterations):
+        moved = False
+        for i in (1, 2):  # forearm, then hand
+            cap, parent = chain[i], chain[i - 1]
+            push, n[0], n[1], n[2], sj = _deepest(a, b, radii, cap, trunk, geo, s, clearance)
+            if push <= 1e-6 or push > max_push:
+                continue
+            moved = True
+            den = (1.0 - sj) ** 2 + sj * sj
+            ca, cb = push * (1.0 - sj) / den, push * sj / den
+            near, far = a[cap].copy(), b[cap].copy()
+            l_near, l_far = _norm3(b[parent] - a[parent]), _norm3(far - near)
+            tgt[:] = near + ca * n  # the near end turns about the parent's pivot
+            _place(a[parent], b[parent], tgt, l_near)
+            a[cap] = b[parent]
+            tgt[:] = far + (a[cap] - near) + cb * n  # the far end goes with it, then turns
+            _place(a[cap], b[cap], tgt, l_far)
+            if i == 1:  # the hand rides the wrist
+                b[chain[2]] += b[cap] - far
+                a[chain[2]] = b[cap]
+        if not moved:
+            break
+
+
 @_jit
 def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDArray[np.int64], s: F64,
-                clearance: float, max_push: float, iterations: int) -> None:  # pragma: no cover
+                clearance: float, max_push: float, iterations: int, memory: F64,
+                first_given: bool) -> None:  # pragma: no cover
     """Sunk forearms and hands turned out of the trunk, in place (the rule, and its numpy
-    reference: :func:`cloth_client.limb_clearance.clear_limbs` with ``backend="numpy"``).
+    reference: :func:`cloth_client.limb_clearance.clear_limbs_track` with ``backend="numpy"``).
 
     Parameters
     ----------
     a, b : (K, C, 3) float64
+        Keys in time order.
     radii : (C, 2) float64
     arms : (2, 3) int64
         Upper arm, forearm and hand capsule of each side (chained: ``b[upper] = a[forearm]``...).
@@ -498,35 +563,60 @@ def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDAr
     s : (S,) float64
     clearance, max_push : float
     iterations : int
+    memory : (2, 3, 3) float64
+        Per side, how far the elbow, wrist and hand tip were moved from the recorded ones at the
+        previous key (zeros: not moved); updated in place key after key.
+    first_given : bool
+        ``memory`` is the correction of key 0 itself (the previous call's last key, same pose):
+        applied as it is.
     """
     geo = np.empty((a.shape[1], _GEO_COLS))
     tgt = np.empty(3)
     n = np.empty(3)
+    raw = np.empty((3, 3))
+    raw_a = np.empty((3, 3))
+    lengths = np.empty(3)
     for k in range(a.shape[0]):
         capsule_geometry(a[k], b[k], radii, 0.0, geo)
         for side in range(arms.shape[0]):
             chain = arms[side]
             if _deepest(a[k], b[k], radii, chain[1], trunk, geo, s, clearance)[0] > max_push:
+                memory[side] = 0.0
                 continue  # a forearm that cannot be cleared: the side stays as recorded (ghosted)
-            for _ in range(iterations):
-                moved = False
-                for i in (1, 2):  # forearm, then hand
-                    cap, parent = chain[i], chain[i - 1]
-                    push, n[0], n[1], n[2], sj = _deepest(a[k], b[k], radii, cap, trunk, geo, s, clearance)
-                    if push <= 1e-6 or push > max_push:
-                        continue
-                    moved = True
-                    den = (1.0 - sj) ** 2 + sj * sj
-                    ca, cb = push * (1.0 - sj) / den, push * sj / den
-                    near, far = a[k, cap].copy(), b[k, cap].copy()
-                    l_near, l_far = _norm3(b[k, parent] - a[k, parent]), _norm3(far - near)
-                    tgt[:] = near + ca * n  # the near end turns about the parent's pivot
-                    _place(a[k, parent], b[k, parent], tgt, l_near)
-                    a[k, cap] = b[k, parent]
-                    tgt[:] = far + (a[k, cap] - near) + cb * n  # the far end goes with it, then turns
-                    _place(a[k, cap], b[k, cap], tgt, l_far)
-                    if i == 1:  # the hand rides the wrist
-                        b[k, chain[2]] += b[k, cap] - far
-                        a[k, chain[2]] = b[k, cap]
-                if not moved:
-                    break
+            warm = False
+            for j in range(3):
+                raw_a[j], raw[j] = a[k, chain[j]], b[k, chain[j]]
+                lengths[j] = _norm3(b[k, chain[j]] - a[k, chain[j]])
+                warm = warm or _norm3(memory[side, j]) > 1e-12
+            if k == 0 and first_given:
+                if warm:
+                    _rebuild(a[k], b[k], chain, raw, memory[side], 1.0, lengths, tgt)
+                continue
+            _arm_out(a[k], b[k], radii, chain, trunk, geo, s, clearance, max_push, iterations, n, tgt)
+            jump = 0.0
+            for j in range(3):
+                jump = max(jump, _norm3(b[k, chain[j]] - raw[j] - memory[side, j]))
+            if warm and jump > CARRY_JUMP:
+                # the fresh correction jumped (the nearest surface flipped): carry the previous key's
+                # correction instead, pushed out if it sinks, else relaxed towards the recording as far
+                # as it stays clear (at most RELAX_RATE of it: never back into the trunk)
+                for j in range(3):
+                    a[k, chain[j]] = raw_a[j]
+                    b[k, chain[j]] = raw[j]
+                _rebuild(a[k], b[k], chain, raw, memory[side], 1.0, lengths, tgt)
+                if _sunk(a[k], b[k], radii, chain, trunk, geo, s, clearance):
+                    _arm_out(a[k], b[k], radii, chain, trunk, geo, s, clearance, max_push, iterations, n, tgt)
+                else:
+                    lo, hi = 1.0 - RELAX_RATE, 1.0
+                    _rebuild(a[k], b[k], chain, raw, memory[side], lo, lengths, tgt)
+                    if _sunk(a[k], b[k], radii, chain, trunk, geo, s, clearance):
+                        for _ in range(RELAX_STEPS):
+                            mid = 0.5 * (lo + hi)
+                            _rebuild(a[k], b[k], chain, raw, memory[side], mid, lengths, tgt)
+                            if _sunk(a[k], b[k], radii, chain, trunk, geo, s, clearance):
+                                lo = mid
+                            else:
+                                hi = mid
+                        _rebuild(a[k], b[k], chain, raw, memory[side], hi, lengths, tgt)
+            for j in range(3):
+                memory[side, j] = b[k, chain[j]] - raw[j]

@@ -160,7 +160,7 @@ class _Outputs:
         state = self.driver.state
         assert state is not None
         if self.renderer is not None and frame.capture_ts >= self.next_render:
-            rgb = self.renderer.render(np.asarray(frame.pose, dtype=np.float64), state.x)
+            rgb = self.renderer.render(np.asarray(frame.pose, dtype=np.float64), state.x, self.driver.body_capsules)
             for w in self.writers:
                 w.write(rgb)
             result.rendered += 1

@@ -24,7 +24,7 @@ from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 
 from ._contact_kernels import covered as covered_kernel
 from .collision import CapsuleTrack, round_cone_np
-from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, limb_overlap
+from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, clear_limbs_track, limb_overlap
 
 __all__ = [
     "LIMBS",
@@ -112,11 +112,15 @@ class AvatarKeys:
         Joint positions per key.
     rotations : (K + 1, J, 3, 3) float64
         Global joint orientations per key (for pin targets).
+    limb_memory : (2, 3, 3) float64 or None
+        The sunk-limb corrections at the last key, to carry into the next step's keys
+        (:func:`~cloth_client.limb_clearance.clear_limbs_track`); None without the clearance rule.
     """
 
     track: CapsuleTrack
     joints: F64
     rotations: F64
+    limb_memory: F64 | None = None
 
     def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64, axis: NDArray[np.int64] | None = None,
                     axis_s: F64 | None = None, axis_local: F64 | None = None) -> F64:
@@ -196,23 +200,29 @@ def _swing(c: F64, u: F64, y: F64) -> F64:
     return out
 
 
-def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE) -> AvatarKeys:
+def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE,
+              limb_memory: F64 | None = None) -> AvatarKeys:
     """Capsules and joint frames of a pose sequence ``(K + 1, P)`` (one FK call for all keys).
 
     With ``clearance`` (metres; None: the recorded limbs) sunk forearms and hands are turned out of
-    the trunk (:func:`~cloth_client.limb_clearance.clear_limbs`); ``joints`` stay the recorded ones.
+    the trunk (:func:`~cloth_client.limb_clearance.clear_limbs_track`, continuing from
+    ``limb_memory``, the previous step's :attr:`AvatarKeys.limb_memory`, whose last key is
+    ``poses[0]``); ``joints`` stay the recorded ones.
     """
     joints, rot = fk_global(np.atleast_2d(poses), body)
     a = joints[:, CAPSULE_JOINTS[:, 0]]
     b = joints[:, CAPSULE_JOINTS[:, 1]]
+    memory = None
     if clearance is not None:
-        a, b = clear_limbs(a, b, body.capsule_radii, clearance)
-    return AvatarKeys(CapsuleTrack(a, b, body.capsule_radii), joints, rot)
+        a, b, memory = clear_limbs_track(a, b, body.capsule_radii, limb_memory, clearance,
+                                         first_given=limb_memory is not None)
+    return AvatarKeys(CapsuleTrack(a, b, body.capsule_radii), joints, rot, memory)
 
 
 def avatar_capsules(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE) -> tuple[F64, F64]:
     """Capsule endpoints of the avatar the cloth is dressed on: :func:`capsule_endpoints` with sunk
-    forearms and hands turned out of the trunk (``(N, C, 3)``, or ``(C, 3)`` for one pose ``(P,)``)."""
+    forearms and hands turned out of the trunk (``(N, C, 3)``, or ``(C, 3)`` for one pose ``(P,)``;
+    the poses are taken as consecutive keys, each continuing the previous one's corrections)."""
     a, b = capsule_endpoints(body, poses)
     if clearance is None:
         return a, b

@@ -169,6 +169,7 @@ class ClothDriver:
         self._body_end: tuple[F64, F64] | None = None
         self._ghost = np.zeros(len(LIMBS), dtype=bool)
         self._overlap: F64 | None = None
+        self._limb_memory: F64 | None = None  # sunk-limb corrections carried from step to step
         self._tethers: dict[bytes, tuple[NDArray[np.int64], F64]] = {}
 
     # -- public ---------------------------------------------------------------------------------------
@@ -231,6 +232,7 @@ class ClothDriver:
         start = at(standing, t0)
         rot, shift = rigid_root_delta(self.garment.pose, start)
         self.state = initial_state(self.model, self.garment.rest @ rot.T + shift, t0)
+        self._limb_memory = None
         self.state.v[:] = vel
         self.pose = start
         n_dress = max(1, round(cfg.dress_s / cfg.frame_dt))
@@ -257,6 +259,12 @@ class ClothDriver:
         moving = ClothState(self.state.x, self.state.v - velocity, self.state.t)
         return energy(self.model, moving)[part]
 
+    @property
+    def body_capsules(self) -> tuple[F64, F64] | None:
+        """Capsule endpoints ``(C, 3)``, ``(C, 3)`` of the avatar at the last pose fed (sunk limbs
+        turned out as the cloth saw them); None before the garment is dressed."""
+        return self._body_end
+
     def summary(self) -> dict[str, float | int | bool]:
         """Run totals in SI units (metres, seconds)."""
         s = self.stats
@@ -274,7 +282,8 @@ class ClothDriver:
         assert self.state is not None
         n_keys = max(1, math.ceil(dt / self.config.key_dt - 1e-9))
         keys = pose_keys(self.body, interpolate_poses(p0, p1, np.linspace(0.0, 1.0, n_keys + 1)),
-                         self.config.limb_clearance)
+                         self.config.limb_clearance, self._limb_memory)
+        self._limb_memory = keys.limb_memory
         g = self.garment
         pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
         released = self._widen(keys.covered(pins, self._seam_margin))
@@ -367,6 +376,8 @@ class ClothDriver:
         mid = self.pose.copy()
         mid[:6] = pose[:6]
         rot, shift = rigid_root_delta(self.pose, mid)
+        if self._limb_memory is not None:  # the limbs' corrections (world offsets) move with the root
+            self._limb_memory = self._limb_memory @ rot.T
         log.info("pose discontinuity at t=%.3f s: root moved %.2f m; resetting the cloth smoothly",
                  t, float(np.linalg.norm(shift + (rot - np.eye(3)) @ self.pose[:3])))
         self.state = ClothState(self.state.x @ rot.T + shift, 0.5 * self.state.v @ rot.T,

@@ -11,10 +11,11 @@ the shoulder and the wrist about the elbow (every length kept) until the limb's 
 ``clearance`` away from the trunk's; the hand is carried with the wrist and then turns the same way.
 The push is along the outward normal of the trunk surface nearest the deepest point of the limb's
 axis, by that point's depth plus the clearance, so it grows continuously from zero as a limb comes
-within the clearance: the corrected avatar moves as smoothly as the recorded one. A limb passing
-right through the trunk has no continuous way out (the nearest surface flips side at the trunk's
-axis): a side whose forearm would need more than ``MAX_PUSH`` is left as recorded, for
-:meth:`cloth_client.driver.ClothDriver._ghosted`.
+within the clearance. The correction is carried from key to key (:func:`clear_limbs_track`): where
+the nearest surface flips (at a trunk part's axis, in the crease between hip and thigh) a fresh
+correction would jump to the other side, so the previous one is kept instead. A limb passing right through the trunk has no
+continuous way out: a side whose forearm would need more than ``MAX_PUSH`` is left as recorded,
+for :meth:`cloth_client.driver.ClothDriver._ghosted`.
 
 The corrected capsules are the avatar: the cloth collides with them, penetration is measured
 against them and the renderer draws them (:func:`cloth_client.avatar.avatar_capsules`).
@@ -30,7 +31,8 @@ from protocol.skeleton import CAPSULE_INDEX
 from . import _contact_kernels as K
 from .collision import round_cone_np
 
-__all__ = ["ARMS", "LIMBS", "LIMB_CLEARANCE", "MAX_PUSH", "TRUNK", "clear_limbs", "limb_overlap"]
+__all__ = ["ARMS", "LIMBS", "LIMB_CLEARANCE", "MAX_PUSH", "TRUNK", "clear_limbs", "clear_limbs_track",
+           "limb_overlap"]
 
 F64 = NDArray[np.float64]
 
@@ -43,13 +45,12 @@ ARMS = np.array([[CAPSULE_INDEX[f"{side}_{n}"] for n in ("upper_arm", "forearm",
 #: Default gap left between a cleared limb's surface and the trunk's, metres: two cloth margins
 #: (:attr:`cloth_client.cloth.ClothParams.margin`), room for a layer of cloth between hand and hip.
 LIMB_CLEARANCE = 0.012
-#: Deepest push (metres) :func:`clear_limbs` makes; deeper limbs are ghosted by the driver. Short of
-#: the ~16 cm where a forearm's axis reaches the pelvis's or the abdomen's (radius 10-12 cm, forearm
-#: 3-4 cm, clearance) and the nearest surface flips side; 9 cm left the CMU takes with a hand 8-13 cm
-#: deep in the belly ghosted (24-29 mm of penetration, see docs/CLOTH.md).
-MAX_PUSH = 0.14
-_CHUNK = 24  # keys per batch in clear_limbs
-_MIN_LEVER = 0.25  # a point at axis fraction s moves s times the moving end: pushes at s < 0.25 capped
+#: Deepest push (metres) :func:`clear_limbs` makes; deeper limbs are ghosted by the driver. Past the
+#: ~16 cm where a forearm's axis reaches the pelvis's or the abdomen's (radius 10-12 cm, forearm 3-4
+#: cm, clearance), where the nearest surface flips side: the correction carried from the previous
+#: key keeps such a limb on the side it came from (14 cm, the limit before, left the hand of CMU
+#: ``131_01``, whose push at the pelvis's axis is 14.9 cm, ghosted: 21-25 mm of penetration).
+MAX_PUSH = 0.17
 
 
 def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
@@ -118,6 +119,25 @@ def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, m
                 iterations: int = 4, samples: int = 9, backend: str = "numba") -> tuple[F64, F64]:
     """Capsule endpoints with every sunk forearm and hand turned out of the trunk.
 
+    :func:`clear_limbs_track` with no correction carried in (keys taken in time order); see there
+    for the rule and the parameters.
+
+    Returns
+    -------
+    a, b : same shape as the input
+        Copies; unchanged where no limb is within ``clearance`` of the trunk and no carried
+        correction holds one.
+    """
+    a2, b2, _ = clear_limbs_track(a, b, radii, None, clearance, max_push, iterations, samples, backend)
+    return a2, b2
+
+
+def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, clearance: float = LIMB_CLEARANCE,
+                      max_push: float = MAX_PUSH, iterations: int = 4, samples: int = 9, backend: str = "numba",
+                      first_given: bool = False) -> tuple[F64, F64, F64]:
+    """Capsule endpoints of keys in time order with every sunk forearm and hand turned out of the
+    trunk, and the corrections to carry to the next key.
+
     Each round takes the forearm, then the hand, of each side: the deepest sample ``s`` of the
     capsule's axis must move by ``p n`` (``p`` its depth plus the clearance, ``n`` the nearest trunk
     surface's outward normal). The capsule's ends move by the least-norm split of that,
@@ -125,54 +145,134 @@ def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, m
     turns about its parent's pivot (shoulder, elbow) towards its target, the far end is carried
     with it and turns about it towards its own, every length kept. A moved wrist carries the hand.
 
+    The correction is carried from key to key. Started afresh at every key, the nearest surface
+    can flip between two keys (at a trunk part's axis, or in the crease between hip and thigh,
+    where alternate pushes out of the two parts end in different places): a recorded hand in that
+    crease was put 15 cm apart on two keys 8 ms apart, dragging the cloth through itself. So when
+    the fresh correction moves a joint (elbow, wrist, hand tip) more than
+    :data:`~cloth_client._contact_kernels.CARRY_JUMP` from the previous key's correction, the
+    previous one is applied instead (its offsets, each joint turned about its moved parent, lengths
+    kept): pushed out as above if the limb sinks with it, else relaxed towards the recording by as
+    much of :data:`~cloth_client._contact_kernels.RELAX_RATE` as keeps the limb clear (bisection).
+    The corrected limb thus stays on the side of the trunk it was turned to; the fresh correction
+    takes over again once it comes within ``CARRY_JUMP`` of the carried one. Where the two agree,
+    keys are corrected exactly as without the memory.
+
     Parameters
     ----------
     a, b : (K, C, 3) or (C, 3) float64
         Capsule endpoints per key, metres (the arm chains: ``b[upper_arm] = a[forearm]``,
         ``b[forearm] = a[hand]``).
     radii : (C, 2) float64
+    memory : (2, 3, 3) float64, optional
+        Per side (left, right), how far the elbow, wrist and hand tip were moved from the recorded
+        ones at the key before ``a[0]`` (zeros: not moved), as returned by the previous call with
+        the same recording; None: none.
     clearance : float
         Gap to leave between the limb's surface and the trunk's, metres.
     max_push : float
         A side whose forearm's deepest axis sample would have to move further than this (metres)
         is left as recorded (a hand alone over it: the hand), since a limb passing through the
-        trunk has no continuous way out (the nearest surface flips side at the trunk's axis); the
-        driver ghosts it instead.
+        trunk has no continuous way out; the driver ghosts it instead.
     iterations : int
         Rounds per side (each clears the deepest axis sample of each capsule).
     samples : int
         Axis samples per capsule.
     backend : {"numba", "numpy"}
         The kernel or the plain numpy reference (same rule; a test holds them equal).
+    first_given : bool
+        ``memory`` is the correction of ``a[0]`` itself, not of a key before it: the keys start
+        where the previous call's last key ended (the same pose), and the correction is applied
+        to it as it is.
 
     Returns
     -------
     a, b : same shape as the input
-        Copies; unchanged where no limb is within ``clearance`` of the trunk.
+        Copies; unchanged where no limb is within ``clearance`` of the trunk and no carried
+        correction holds one.
+    memory : (2, 3, 3) float64
+        The offsets at the last key.
     """
     single = a.ndim == 2
     a2 = np.array(a[None] if single else a, dtype=np.float64)
     b2 = np.array(b[None] if single else b, dtype=np.float64)
+    mem = np.zeros((2, 3, 3)) if memory is None else np.array(memory, dtype=np.float64)
+    if mem.shape != (2, 3, 3):
+        raise ValueError(f"memory must have shape (2, 3, 3), got {mem.shape}")
     s = np.linspace(0.0, 1.0, samples)
     if backend == "numba":
         K.clear_limbs(a2, b2, np.ascontiguousarray(radii, dtype=np.float64), ARMS, TRUNK, s, clearance, max_push,
-                      iterations)
+                      iterations, mem, first_given)
     elif backend == "numpy":
-        for k0 in range(0, len(a2), _CHUNK):  # _axis_depth costs K^2: chunks of keys
-            ac, bc = a2[k0:k0 + _CHUNK], b2[k0:k0 + _CHUNK]  # views: corrected in place
-            for chain in ARMS:
-                # a side whose forearm cannot be cleared stays as recorded (the driver ghosts it)
-                fore, _, _ = _deepest(ac, bc, radii, chain[1], clearance, s)
-                side = fore <= max_push
-                for _ in range(iterations):
-                    moved = [_turn_out(ac, bc, radii, chain, i, clearance, max_push, s, side) for i in (1, 2)]
-                    if not any(moved):
-                        break
+        for k in range(len(a2)):  # key after key: each continues from the previous key's correction
+            _clear_key(a2[k:k + 1], b2[k:k + 1], radii, mem, clearance, max_push, iterations, s,
+                       k == 0 and first_given)
     else:
         raise ValueError(f"unknown backend {backend!r}")
     if single:
-        return a2[0], b2[0]
-    return a2, b2
+        return a2[0], b2[0], mem
+    return a2, b2, mem
+
+
+def _clear_key(a: F64, b: F64, radii: F64, mem: F64, clearance: float, max_push: float, iterations: int,
+               s: F64, given: bool) -> None:
+    """One key ``(1, C, 3)`` of :func:`clear_limbs_track`'s numpy reference, in place (``mem`` too);
+    ``given``: ``mem`` is this key's own correction."""
+    for side, chain in enumerate(ARMS):
+        if _deepest(a, b, radii, chain[1], clearance, s)[0][0] > max_push:
+            mem[side] = 0.0
+            continue  # a side whose forearm cannot be cleared stays as recorded (the driver ghosts it)
+        raw_a, raw = a[0, chain].copy(), b[0, chain].copy()
+        lengths = np.linalg.norm(raw - raw_a, axis=-1)
+        warm = bool((np.linalg.norm(mem[side], axis=-1) > 1e-12).any())
+        if given:
+            if warm:
+                _rebuild(a, b, chain, raw, mem[side], 1.0, lengths)
+            continue
+        _arm_out(a, b, radii, chain, clearance, max_push, iterations, s)
+        if warm and np.linalg.norm(b[0, chain] - raw - mem[side], axis=-1).max() > K.CARRY_JUMP:
+            # the fresh correction jumped: carry the previous one, pushed out if it sinks, else
+            # relaxed as far as it stays clear (at most RELAX_RATE of it)
+            a[0, chain], b[0, chain] = raw_a, raw
+            _rebuild(a, b, chain, raw, mem[side], 1.0, lengths)
+            if _sunk(a, b, radii, chain, clearance, s):
+                _arm_out(a, b, radii, chain, clearance, max_push, iterations, s)
+            else:
+                lo, hi = 1.0 - K.RELAX_RATE, 1.0
+                _rebuild(a, b, chain, raw, mem[side], lo, lengths)
+                if _sunk(a, b, radii, chain, clearance, s):
+                    for _ in range(K.RELAX_STEPS):
+                        mid = 0.5 * (lo + hi)
+                        _rebuild(a, b, chain, raw, mem[side], mid, lengths)
+                        if _sunk(a, b, radii, chain, clearance, s):
+                            lo = mid
+                        else:
+                            hi = mid
+                    _rebuild(a, b, chain, raw, mem[side], hi, lengths)
+        mem[side] = b[0, chain] - raw
+
+
+def _sunk(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], clearance: float, s: F64) -> bool:
+    """Whether the forearm or hand of ``chain`` (one key) is nearer the trunk than ``clearance``."""
+    return max(float(_deepest(a, b, radii, chain[i], clearance, s)[0][0]) for i in (1, 2)) > 1e-6
+
+
+def _arm_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], clearance: float, max_push: float,
+             iterations: int, s: F64) -> None:
+    """Rounds of pushes of the forearm, then the hand, of ``chain`` (one key), in place."""
+    for _ in range(iterations):
+        moved = [_push_out(a, b, radii, chain, i, clearance, max_push, s) for i in (1, 2)]
+        if not any(moved):
+            break
+
+
+def _rebuild(a: F64, b: F64, chain: NDArray[np.int64], raw: F64, offset: F64, lam: float, lengths: F64) -> None:
+    """Arm ``chain`` of one key ``(1, C, 3)`` set to its recorded joints ``raw`` (3, 3: elbow,
+    wrist, hand tip) moved by ``lam * offset``, each turned about its moved parent, lengths kept."""
+    for j in range(3):
+        b[0, chain[j]] = _unit_towards(a[0, chain[j]], raw[j] + lam * offset[j], lengths[j], b[0, chain[j]])
+        if j < 2:
+            a[0, chain[j + 1]] = b[0, chain[j]]
 
 
 def _unit_towards(pivot: F64, target: F64, length: F64, keep: F64) -> F64:
@@ -193,26 +293,25 @@ def _deepest(a: F64, b: F64, radii: F64, cap: int, clearance: float, s: F64) -> 
     return depth[kk, j], normal[kk, j], s[j]
 
 
-def _turn_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], i: int, clearance: float, max_push: float,
-              s: F64, keys: NDArray[np.bool_]) -> bool:
-    """One push of capsule ``chain[i]`` (1: forearm, 2: hand) for the ``keys`` that need it, in place;
-    False when none did."""
+def _push_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], i: int, clearance: float, max_push: float,
+              s: F64) -> bool:
+    """One push of capsule ``chain[i]`` (1: forearm, 2: hand) of one key ``(1, C, 3)`` along the
+    nearest trunk surface's normal, in place; False when it needs none (or more than ``max_push``)."""
     cap, parent = chain[i], chain[i - 1]
-    push, n, sj = _deepest(a, b, radii, cap, clearance, s)
-    m = keys & (push > 1e-6) & (push <= max_push)
-    if not m.any():
+    push_, n, sj_ = _deepest(a, b, radii, cap, clearance, s)
+    if not 1e-6 < push_[0] <= max_push:
         return False
-    push, n, sj = push[m, None], n[m], sj[m, None]
+    push, sj = push_[:, None], sj_[:, None]
     den = (1.0 - sj) ** 2 + sj**2
-    near, far = a[m, cap], b[m, cap]  # copies (boolean index)
-    l_near = np.linalg.norm(b[m, parent] - a[m, parent], axis=-1, keepdims=True)
+    near, far = a[:, cap].copy(), b[:, cap].copy()
+    l_near = np.linalg.norm(b[:, parent] - a[:, parent], axis=-1, keepdims=True)
     l_far = np.linalg.norm(far - near, axis=-1, keepdims=True)
-    new_near = _unit_towards(a[m, parent], near + push * (1.0 - sj) / den * n, l_near, b[m, parent])
+    new_near = _unit_towards(a[:, parent], near + push * (1.0 - sj) / den * n, l_near, b[:, parent])
     new_far = _unit_towards(new_near, far + (new_near - near) + push * sj / den * n, l_far, far)
-    b[m, parent] = new_near
-    a[m, cap] = new_near
-    b[m, cap] = new_far
+    b[:, parent] = new_near
+    a[:, cap] = new_near
+    b[:, cap] = new_far
     if i == 1:  # the hand rides the wrist
-        b[m, chain[2]] += new_far - far
-        a[m, chain[2]] = new_far
+        b[:, chain[2]] += new_far - far
+        a[:, chain[2]] = new_far
     return True

@@ -123,7 +123,7 @@ def simulate_motion(
             if (renderer is not None and writer is not None and driver.state is not None
                     and times[i] + 1e-9 >= next_render):
                 t0 = time.perf_counter()
-                writer.write(renderer.render(poses[i], driver.state.x))
+                writer.write(renderer.render(poses[i], driver.state.x, driver.body_capsules))
                 render_wall += time.perf_counter() - t0
                 next_render += 1.0 / video_fps
             if bar is not None:

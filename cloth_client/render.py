@@ -155,10 +155,13 @@ class ClothRenderer:
         self.scene.set_pose(self.key_light, _look_at(eye + 1.5 * side + np.array([0.0, 3.0, 0.0]), target))
         self.scene.set_pose(self.fill_light, _look_at(2 * target - eye + np.array([0.0, 2.0, 0.0]), target))
 
-    def render(self, pose: F64, cloth_x: F64) -> NDArray[np.uint8]:
-        """RGB image ``(H, W, 3) uint8`` of the avatar at ``pose (P,)`` wearing cloth ``cloth_x (N, 3)``
-        (the avatar the cloth is simulated on: sunk forearms and hands turned out of the trunk)."""
-        a, b = avatar_capsules(self.body, pose, self.limb_clearance)
+    def render(self, pose: F64, cloth_x: F64, capsules: tuple[F64, F64] | None = None) -> NDArray[np.uint8]:
+        """RGB image ``(H, W, 3) uint8`` of the avatar at ``pose (P,)`` wearing cloth ``cloth_x (N, 3)``.
+
+        ``capsules`` (two ``(C, 3)`` endpoint arrays) are the avatar the cloth was simulated on
+        (:attr:`cloth_client.driver.ClothDriver.body_capsules`, whose sunk-limb corrections carry
+        over from frame to frame); None computes them from ``pose`` alone."""
+        a, b = capsules if capsules is not None else avatar_capsules(self.body, pose, self.limb_clearance)
         for c, node in enumerate(self.capsule_nodes):
             self.scene.set_pose(node, _align_z(a[c], b[c]))
         if self.cloth_node is not None:

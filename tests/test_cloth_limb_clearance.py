@@ -7,12 +7,20 @@ import numpy as np
 import pytest
 from test_cloth_driver import _dance
 
-from cloth_client.avatar import avatar_capsules, capsule_endpoints
+from cloth_client.avatar import avatar_capsules, capsule_endpoints, rigid_root_delta
 from cloth_client.cloth import structural_strain
 from cloth_client.collision import penetration_np
 from cloth_client.driver import ClothDriver, DriverConfig
 from cloth_client.garment import make_skirt
-from cloth_client.limb_clearance import ARMS, LIMB_CLEARANCE, LIMBS, MAX_PUSH, clear_limbs, limb_overlap
+from cloth_client.limb_clearance import (
+    ARMS,
+    LIMB_CLEARANCE,
+    LIMBS,
+    MAX_PUSH,
+    clear_limbs,
+    clear_limbs_track,
+    limb_overlap,
+)
 from protocol.skeleton import CAPSULE_INDEX, default_body, standing_pose
 
 BODY = default_body()
@@ -33,12 +41,28 @@ def test_kernel_matches_the_numpy_reference() -> None:
     b = b + rng.normal(0.0, 0.01, b.shape)
     an, bn = clear_limbs(a, b, R, backend="numba")
     ar, br = clear_limbs(a, b, R, backend="numpy")
+    bn_all = bn
     assert np.abs(an - a).max() > 0.05  # the motion does need clearing
     np.testing.assert_allclose(an, ar, atol=1e-9)
     np.testing.assert_allclose(bn, br, atol=1e-9)
-    a1, b1 = clear_limbs(a[40], b[40], R)  # one pose (C, 3)
+    _, _, memory = clear_limbs_track(a[:40], b[:40], R)  # carried over: one pose (C, 3) continues the run
+    a1, b1, _ = clear_limbs_track(a[40], b[40], R, memory)
     np.testing.assert_allclose(a1, an[40], atol=1e-12)
     np.testing.assert_allclose(b1, bn[40], atol=1e-12)
+    for backend in ("numba", "numpy"):  # the memory out of the kernel and out of the reference agree
+        _, _, m = clear_limbs_track(a[:40], b[:40], R, backend=backend)
+        np.testing.assert_allclose(m, memory, atol=1e-9)
+    # a run continued from its memory (its first key given), and a lower push limit that skips a
+    # side while it carries a correction: both backends alike
+    runs = {backend: [clear_limbs_track(a[39:], b[39:], R, memory, backend=backend, first_given=True),
+                      clear_limbs_track(a, b, R, max_push=0.10, backend=backend)] for backend in ("numba", "numpy")}
+    for (an, bn, mn), (ar, br, mr) in zip(runs["numba"], runs["numpy"], strict=True):
+        np.testing.assert_allclose(an, ar, atol=1e-9)
+        np.testing.assert_allclose(bn, br, atol=1e-9)
+        np.testing.assert_allclose(mn, mr, atol=1e-9)
+    np.testing.assert_allclose(runs["numba"][0][1][1:], bn_all[40:], atol=1e-12)
+    with pytest.raises(ValueError, match="shape"):
+        clear_limbs_track(a, b, R, np.zeros((6, 3)))
     with pytest.raises(ValueError, match="backend"):
         clear_limbs(a, b, R, backend="cuda")
 
@@ -68,10 +92,12 @@ def test_clear_limbs_and_limbs_too_deep_are_left_alone() -> None:
     ac, bc = clear_limbs(a, b, R)
     np.testing.assert_array_equal(ac, a)
     np.testing.assert_array_equal(bc, b)
-    a, b = _swing(0.65, 0.66, 100.0)  # the forearm 14 cm deep in the pelvis: no continuous way out
-    assert limb_overlap(a[0], b[0], R)[L_FORE] + LIMB_CLEARANCE > MAX_PUSH
-    ac, bc = clear_limbs(a, b, R)
+    a, b = _swing(0.65, 0.66, 100.0)  # the forearm 14 cm deep in the pelvis
+    push = limb_overlap(a[0], b[0], R)[L_FORE] + LIMB_CLEARANCE
+    assert 0.10 < push < MAX_PUSH  # turned out with the default limit
     fore = CAPSULE_INDEX["l_forearm"]
+    assert np.abs(clear_limbs(a, b, R)[1][0, fore] - b[0, fore]).max() > 0.05
+    ac, bc = clear_limbs(a, b, R, max_push=0.10)  # beyond a lower one: left as recorded
     np.testing.assert_array_equal(ac[0, fore], a[0, fore])
     np.testing.assert_array_equal(bc[0, fore], b[0, fore])
 
@@ -84,6 +110,41 @@ def test_the_correction_grows_continuously_from_zero() -> None:
     raw = np.abs(np.diff(b, axis=0)).max()
     fixed = np.abs(np.diff(bc, axis=0)).max()
     assert np.abs(bc - b).max() > 0.03 and fixed < 4.0 * raw
+
+
+def test_a_corrected_limb_moves_as_smoothly_as_the_recorded_one() -> None:
+    """The forearm swinging through the hips, keys at the driver's 240 Hz: wherever the corrected
+    arm is clear of the trunk on two consecutive keys, its forearm and hand move at most a little
+    more than the recorded ones, and the hand never turns back where the recorded one does not.
+    Started afresh at every key, the rule put the arm on whichever side the nearest surface (or the
+    last of alternate pushes out of hip and thigh) pointed to: jumps of 18 cm between keys."""
+    a, b = _swing(0.4, 1.2, 240.0)
+    ac, bc = clear_limbs(a, b, R)
+    after = np.array([limb_overlap(ac[k], bc[k], R) for k in range(len(a))])
+    clear = (after[:, [L_FORE, L_HAND]] <= 0.0).all(axis=1)
+    both = clear[1:] & clear[:-1]
+    limbs = LIMBS[[L_FORE, L_HAND]]
+    raw = np.linalg.norm(np.diff(b[:, limbs], axis=0), axis=-1).max(axis=1)
+    fixed = np.linalg.norm(np.diff(bc[:, limbs], axis=0), axis=-1).max(axis=1)
+    corrected = np.abs(bc - b).max(axis=(1, 2)) > 0.01
+    assert (corrected[1:] & both).sum() >= 80  # the swing is corrected and clear over many keys
+    assert (fixed - raw)[both].max() < 0.02
+    v, rv = np.diff(bc[:, limbs[1]], axis=0), np.diff(b[:, limbs[1]], axis=0)  # hand tip steps
+    turns = ((v[1:] * v[:-1]).sum(axis=1) < 0.0) & (np.linalg.norm(v[1:], axis=1) > 0.005)
+    assert not (turns & ((rv[1:] * rv[:-1]).sum(axis=1) > 0.0)).any()
+    # keys passed one call at a time, with the memory, give the same avatar as one call
+    memory = None
+    for k in range(len(a)):
+        _, b1, memory = clear_limbs_track(a[k], b[k], R, memory)
+        np.testing.assert_allclose(b1, bc[k], atol=1e-12)
+    # as the cloth driver calls it: steps of keys, each starting at the previous step's last key
+    _, b0, memory = clear_limbs_track(a[:8], b[:8], R)
+    parts = [b0]
+    for k0 in range(7, len(a) - 1, 7):
+        _, b1, memory = clear_limbs_track(a[k0:k0 + 8], b[k0:k0 + 8], R, memory, first_given=True)
+        np.testing.assert_allclose(b1[0], parts[-1][-1], atol=1e-12)  # the shared key is not corrected twice
+        parts.append(b1[1:])
+    np.testing.assert_allclose(np.concatenate(parts), bc[:sum(len(p) for p in parts)], atol=1e-12)
 
 
 def test_skirt_under_a_forearm_held_in_the_hips() -> None:
@@ -107,3 +168,28 @@ def test_skirt_under_a_forearm_held_in_the_hips() -> None:
     assert depth.max() < 0.005
     assert structural_strain(d.model, d.state.x).max() < 0.10
     assert runs[None]._ghost.any()
+
+
+def test_the_driver_carries_the_correction_and_draws_it() -> None:
+    """The cloth driver keeps the sunk-limb correction from step to step (the avatar it simulates
+    is the one the renderer gets), and a reset moves the carried correction with the root."""
+    d = ClothDriver(BODY, make_skirt(BODY, 300), config=DriverConfig(dress_s=0.1, settle_s=0.1))
+    fore = CAPSULE_INDEX["l_forearm"]
+    for ti in np.arange(0.45, 0.62, 1.0 / 60.0):
+        pose = _dance(np.array([ti]))[0]
+        d.feed(pose, float(ti))
+    assert d.body_capsules is not None and d._limb_memory is not None
+    a_raw, b_raw = capsule_endpoints(BODY, pose)
+    assert limb_overlap(a_raw, b_raw, R)[L_FORE] > 0.05  # recorded: the forearm deep in the hips
+    a, b = d.body_capsules
+    assert limb_overlap(a, b, R)[L_FORE] < 0.0  # simulated and drawn: turned out
+    assert np.abs(b[fore] - b_raw[fore]).max() > 0.05
+    memory = d._limb_memory.copy()
+    assert np.abs(memory[0]).max() > 0.05 and not memory[1].any()  # the left arm carries a correction
+    jump = pose.copy()  # the tracker re-initialises: 3 m away, turned 180 degrees
+    jump[0] += 3.0
+    jump[3:6] = [0.0, np.pi, 0.0]
+    rot, _ = rigid_root_delta(pose, jump)
+    d._advance = lambda *args, **kwargs: None  # type: ignore[method-assign]  # only the reset's own bookkeeping
+    d._reset(jump, 0.7)
+    np.testing.assert_allclose(d._limb_memory, memory @ rot.T, atol=1e-12)

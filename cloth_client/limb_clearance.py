@@ -13,9 +13,9 @@ The push is along the outward normal of the trunk surface nearest the deepest po
 axis, by that point's depth plus the clearance, so it grows continuously from zero as a limb comes
 within the clearance. The correction is carried from key to key (:func:`clear_limbs_track`): where
 the nearest surface flips (at a trunk part's axis, in the crease between hip and thigh) a fresh
-correction would jump to the other side, so the previous one is kept instead. A limb passing right through the trunk has no
-continuous way out: a side whose forearm would need more than ``MAX_PUSH`` is left as recorded,
-for :meth:`cloth_client.driver.ClothDriver._ghosted`.
+correction would jump to the other side, so the previous one is kept instead. A limb passing right
+through the trunk has no continuous way out: a side whose forearm would need more than
+``MAX_PUSH`` is left as recorded, for :meth:`cloth_client.driver.ClothDriver._ghosted`.
 
 The corrected capsules are the avatar: the cloth collides with them, penetration is measured
 against them and the renderer draws them (:func:`cloth_client.avatar.avatar_capsules`).

@@ -56,8 +56,8 @@ ALL_CAPSULES = -1
 #: (:func:`broad_phase`) before :func:`collide` tests every capsule again for it.
 BROAD_SLACK = 0.02
 #: A limb correction (:func:`clear_limbs`) that moves a joint further than this (metres) from the
-#: previous key's correction is a flip of the nearest trunk surface, not a motion: the previous
-#: correction is carried over instead.
+#: previous key's correction is taken for a flip of the nearest trunk surface (it can also be a
+#: fast motion seen through keys closer than ~3.5 ms): the previous correction is carried over.
 CARRY_JUMP = 0.02
 #: Largest fraction of a carried-over correction given back to the recording per key, and the
 #: bisection steps that find how much of it keeps the limb clear.
@@ -593,9 +593,10 @@ def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDAr
                     _rebuild(a[k], b[k], chain, raw, memory[side], 1.0, lengths, tgt)
                 continue
             _arm_out(a[k], b[k], radii, chain, trunk, geo, s, clearance, max_push, iterations, n, tgt)
-            jump = 0.0
+            jump, fresh_size = 0.0, 0.0
             for j in range(3):
                 jump = max(jump, _norm3(b[k, chain[j]] - raw[j] - memory[side, j]))
+                fresh_size = max(fresh_size, _norm3(b[k, chain[j]] - raw[j]))
             if warm and jump > CARRY_JUMP:
                 # the fresh correction jumped (the nearest surface flipped): carry the previous key's
                 # correction instead, pushed out if it sinks, else relaxed towards the recording as far
@@ -618,5 +619,11 @@ def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDAr
                             else:
                                 hi = mid
                         _rebuild(a[k], b[k], chain, raw, memory[side], hi, lengths, tgt)
+                        if hi == 1.0 and fresh_size == 0.0:
+                            # the recorded limb is clear and the way back to it is through the trunk:
+                            # a carried correction must not hold the arm away forever; back to the recording
+                            for j in range(3):
+                                a[k, chain[j]] = raw_a[j]
+                                b[k, chain[j]] = raw[j]
             for j in range(3):
                 memory[side, j] = b[k, chain[j]] - raw[j]

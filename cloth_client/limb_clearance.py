@@ -45,7 +45,7 @@ ARMS = np.array([[CAPSULE_INDEX[f"{side}_{n}"] for n in ("upper_arm", "forearm",
 #: Default gap left between a cleared limb's surface and the trunk's, metres: two cloth margins
 #: (:attr:`cloth_client.cloth.ClothParams.margin`), room for a layer of cloth between hand and hip.
 LIMB_CLEARANCE = 0.012
-#: Deepest push (metres) :func:`clear_limbs` makes; deeper limbs are ghosted by the driver. Past the
+#: Deepest fresh push (metres) :func:`clear_limbs` makes; deeper limbs are ghosted by the driver. Past the
 #: ~16 cm where a forearm's axis reaches the pelvis's or the abdomen's (radius 10-12 cm, forearm 3-4
 #: cm, clearance), where the nearest surface flips side: the correction carried from the previous
 #: key keeps such a limb on the side it came from (14 cm, the limit before, left the hand of CMU
@@ -156,7 +156,9 @@ def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, cle
     much of :data:`~cloth_client._contact_kernels.RELAX_RATE` as keeps the limb clear (bisection).
     The corrected limb thus stays on the side of the trunk it was turned to; the fresh correction
     takes over again once it comes within ``CARRY_JUMP`` of the carried one. Where the two agree,
-    keys are corrected exactly as without the memory.
+    keys are corrected exactly as without the memory. A carried correction is dropped (the arm
+    goes back to the recording) when the recorded limb is clear of the trunk but no part of the
+    way back to it is (an arm swung through the side of the hips and held behind them).
 
     Parameters
     ----------
@@ -230,6 +232,7 @@ def _clear_key(a: F64, b: F64, radii: F64, mem: F64, clearance: float, max_push:
                 _rebuild(a, b, chain, raw, mem[side], 1.0, lengths)
             continue
         _arm_out(a, b, radii, chain, clearance, max_push, iterations, s)
+        fresh_size = float(np.linalg.norm(b[0, chain] - raw, axis=-1).max())
         if warm and np.linalg.norm(b[0, chain] - raw - mem[side], axis=-1).max() > K.CARRY_JUMP:
             # the fresh correction jumped: carry the previous one, pushed out if it sinks, else
             # relaxed as far as it stays clear (at most RELAX_RATE of it)
@@ -249,6 +252,8 @@ def _clear_key(a: F64, b: F64, radii: F64, mem: F64, clearance: float, max_push:
                         else:
                             hi = mid
                     _rebuild(a, b, chain, raw, mem[side], hi, lengths)
+                    if hi == 1.0 and fresh_size == 0.0:  # recorded limb clear, the way back blocked
+                        a[0, chain], b[0, chain] = raw_a, raw
         mem[side] = b[0, chain] - raw
 
 

@@ -193,3 +193,30 @@ def test_the_driver_carries_the_correction_and_draws_it() -> None:
     d._advance = lambda *args, **kwargs: None  # type: ignore[method-assign]  # only the reset's own bookkeeping
     d._reset(jump, 0.7)
     np.testing.assert_allclose(d._limb_memory, memory @ rot.T, atol=1e-12)
+
+
+def test_a_carried_correction_lets_go_once_the_recorded_arm_is_clear() -> None:
+    """An arm swung from the front to the back through the side of the hips and held there, clear
+    of the body: the correction carried through the swing (on the side the arm came from) must not
+    hold the arm away from the recording once the way back would cross the trunk."""
+    a0, b0 = capsule_endpoints(BODY, standing_pose(BODY))
+    chain = ARMS[0]
+    shoulder = a0[chain[0]].copy()
+    rate = 240.0
+    swing = np.linspace(np.radians(60.0), np.radians(-40.0), int(rate))
+    flex = np.concatenate([swing, np.full(int(rate), swing[-1])])
+    c, s = np.cos(np.radians(-25.0)), np.sin(np.radians(-25.0))
+    adduct = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    a, b = np.repeat(a0[None], len(flex), 0), np.repeat(b0[None], len(flex), 0)
+    for k, f in enumerate(flex):
+        cf, sf = np.cos(f), np.sin(f)
+        turn = np.array([[1.0, 0.0, 0.0], [0.0, cf, -sf], [0.0, sf, cf]]) @ adduct
+        for cap in chain:
+            a[k, cap] = shoulder + (a0[cap] - shoulder) @ turn.T
+            b[k, cap] = shoulder + (b0[cap] - shoulder) @ turn.T
+    _, bc = clear_limbs(a, b, R)
+    raw_overlap = np.array([limb_overlap(a[k], b[k], R)[[L_FORE, L_HAND]].max() for k in range(len(a))])
+    assert raw_overlap.max() > 0.05 and raw_overlap[-int(rate):].max() < -0.03  # through the hips, then clear
+    moved = np.abs(bc[:, chain] - b[:, chain]).max(axis=(1, 2))
+    assert moved.max() > 0.05  # corrected during the swing
+    np.testing.assert_array_equal(bc[-int(rate // 2):], b[-int(rate // 2):])  # as recorded once clear

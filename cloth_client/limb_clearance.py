@@ -18,7 +18,8 @@ through the trunk has no continuous way out: a side whose forearm would need mor
 ``MAX_PUSH`` is left as recorded, for :meth:`cloth_client.driver.ClothDriver._ghosted`.
 
 The corrected capsules are the avatar: the cloth collides with them, penetration is measured
-against them and the renderer draws them (:func:`cloth_client.avatar.avatar_capsules`).
+against them and the renderer draws them (:attr:`cloth_client.driver.ClothDriver.body_capsules`;
+:func:`cloth_client.avatar.avatar_capsules` for a pose sequence without a driver).
 """
 
 from __future__ import annotations

@@ -269,6 +269,10 @@ class Estimate:
     evaluations : tuple of int
         Distance evaluations per level (Table 2).
     reinitialised : bool
+    support_places : (K, 3) float64
+        Best placement of each support leaf (the order of ``FilterState.leaves``).
+    support_cost : (K,) float64
+        Each support leaf's negative log likelihood at that placement (eq. 6 plus the skin cue).
     """
 
     leaf: int
@@ -280,3 +284,5 @@ class Estimate:
     visibility: NDArray[np.float32]
     evaluations: tuple[int, ...]
     reinitialised: bool
+    support_places: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    support_cost: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))

@@ -430,6 +430,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         placement=place, distance=dist,
         confidence=float(np.exp(-0.5 * (dist / params.confidence_scale) ** 2)),
         visibility=vis.astype(np.float32), evaluations=tuple(evals), reinitialised=reinit,
+        support_places=node_place[sup], support_cost=cost[sup],
     )
     return new_state, est
 

@@ -270,9 +270,11 @@ class Estimate:
         Distance evaluations per level (Table 2).
     reinitialised : bool
     support_places : (K, 3) float64
-        Best placement of each support leaf (the order of ``FilterState.leaves``).
+        Best placement of each of the ``K`` support leaves, in the order of the new
+        ``FilterState.leaves`` (which is empty after a re-initialisation).
     support_cost : (K,) float64
-        Each support leaf's negative log likelihood at that placement (eq. 6 plus the skin cue).
+        Each support leaf's cost at that placement: eq. 6's negative log likelihood plus the
+        placement prior and the skin cue.
     """
 
     leaf: int

@@ -14,7 +14,8 @@ Usage::
 ``--true-height`` gives the tracker the subject's true stature instead of the body selection's
 choice (the templates' scale; the output skeleton stays the selected model's): an upper bound of
 what a better height estimate can give (session 12: -0.18 / +0.02 / -0.20 cm on subjects 11 / 7 / 3
-over all 51 held-out takes). A diagnostic, not a test: it takes minutes. No forced losses.
+over all 51 held-out takes). A diagnostic, not a test: it takes minutes. No forced losses
+(the loop is :func:`tracker_service.evaluate.evaluate_motion`'s, with a per-frame hook).
 """
 
 from __future__ import annotations
@@ -32,9 +33,11 @@ from protocol.motion import load_motion
 from tracker_service import body_selection, pipeline
 from tracker_service.body_models import BODY_MODELS
 from tracker_service.db_build import is_held_out
+from tracker_service.evaluate import EvalOptions, evaluate_motion
 from tracker_service.filter_model import Estimate
-from tracker_service.pipeline import TrackerConfig, new_state, process_frame
-from tracker_service.scene import SceneConfig, SyntheticScene
+from tracker_service.pipeline import FrameResult, TrackerConfig, TrackerState
+from tracker_service.scene import SceneFrame
+from tracker_service.scene_subject import random_subject_spec
 from tracker_service.tracker_cli import ensure_db
 
 LEGS = [16, 17, 18, 19, 20, 21, 22, 23]
@@ -74,56 +77,51 @@ def main() -> int:
         return st, est
 
     pipeline.step = keep  # type: ignore[assignment]
-    subject_height = [float("nan")]
+    # the scene's subject is drawn from the seed alone (tracker_service.scene.SyntheticScene)
+    subject_height = random_subject_spec(np.random.default_rng([args.seed, 0])).height
     if args.true_height:
         choose = body_selection.BodyChoice.from_scores
 
         def forced(scores: Any, db_body: Any, stature: float = float("nan"), tolerance_m: float = 0.06) -> Any:
             c = choose(scores, db_body, stature, tolerance_m)
-            return body_selection.BodyChoice(c.body, subject_height[0] / db_body.height, c.mean_distance)
+            return body_selection.BodyChoice(c.body, subject_height / db_body.height, c.mean_distance)
 
         body_selection.BodyChoice.from_scores = staticmethod(forced)  # type: ignore[method-assign]
 
-    cfg = TrackerConfig(distance="xor", body_candidates=tuple(m.name for m in BODY_MODELS), background_frames=12)
+    cfg = TrackerConfig(distance="xor", body_candidates=tuple(m.name for m in BODY_MODELS))
+    opts = EvalOptions(frames=args.frames, seed=args.seed)
     rows = []
     for e in tqdm(pick, desc="held-out takes", disable=args.json):
-        motion = load_motion(mocap_root() / e.path, fps=30.0)
-        travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max()
-        scene = SyntheticScene(motion, seed=args.seed, config=SceneConfig(
-            width=loaded.camera.width, height=loaded.camera.height, fps=30.0, empty_prefix=12,
-            in_place=bool(travel > 2.0)))
-        subject_height[0] = float(scene.subject.spec.height)
-        state = new_state(loaded.body)
-        pub, mapl, best, legs, arms, legs_best = [], [], [], [], [], []
-        try:
-            for i in range(min(scene.n_frames, 12 + args.frames)):
-                fr = scene.frame(i)
-                last.clear()
-                state, res = process_frame(state, fr.image, db, loaded.body, loaded.camera, cfg, fr.timestamp)
-                if (not fr.truth.present or res.joints is None or res.phase != "tracking" or "est" not in last
-                        or not len(state.filter.leaves)):  # no support right after a re-initialisation
-                    continue
-                truth = _root_relative(fr.truth.joints)
-                ep = np.linalg.norm(_root_relative(res.joints) - truth, axis=1)
-                poses = db.leaf_poses[state.filter.leaves].astype(np.float64)
-                poses[:, :3] = 0.0
-                sup = np.linalg.norm(_root_relative(fk(poses, state.body)) - truth, axis=2)  # (K, J)
-                pub.append(ep.mean())
-                legs.append(ep[LEGS].mean())
-                arms.append(ep[ARMS].mean())
-                mapl.append(sup[0].mean())
-                best.append(sup.mean(axis=1).min())
-                legs_best.append(sup[:, LEGS].mean(axis=1).min())
-        finally:
-            scene.close()
-        if pub:
-            rows.append({"take": e.path, "frames": len(pub), "body": state.body.name,
-                         "published_cm": 100 * float(np.mean(pub)), "map_cm": 100 * float(np.mean(mapl)),
-                         "support_oracle_cm": 100 * float(np.mean(best)),
-                         "within_10cm": float(np.mean(np.asarray(pub) < 0.1)),
-                         "support_oracle_within_10cm": float(np.mean(np.asarray(best) < 0.1)),
-                         "legs_cm": 100 * float(np.mean(legs)), "arms_cm": 100 * float(np.mean(arms)),
-                         "legs_support_oracle_cm": 100 * float(np.mean(legs_best))})
+        acc: dict[str, list[float]] = {k: [] for k in ("pub", "map", "best", "legs", "arms", "legs_best")}
+        bodies: list[str] = []
+
+        def observe(fr: SceneFrame, state: TrackerState, res: FrameResult, acc: dict[str, list[float]] = acc,
+                    bodies: list[str] = bodies) -> None:
+            if (not fr.truth.present or res.joints is None or res.phase != "tracking" or "est" not in last
+                    or not len(state.filter.leaves)):  # no support right after a re-initialisation
+                return
+            truth = _root_relative(fr.truth.joints)
+            ep = np.linalg.norm(_root_relative(res.joints) - truth, axis=1)
+            poses = db.leaf_poses[state.filter.leaves].astype(np.float64)
+            poses[:, :3] = 0.0
+            sup = np.linalg.norm(_root_relative(fk(poses, state.body)) - truth, axis=2)  # (K, J)
+            for k, v in (("pub", ep.mean()), ("legs", ep[LEGS].mean()), ("arms", ep[ARMS].mean()),
+                         ("map", sup[0].mean()), ("best", sup.mean(axis=1).min()),
+                         ("legs_best", sup[:, LEGS].mean(axis=1).min())):
+                acc[k].append(float(v))
+            bodies[:] = [state.body.name]
+            last.clear()
+
+        evaluate_motion(load_motion(mocap_root() / e.path, fps=30.0), loaded, cfg, opts, observe=observe)
+        if acc["pub"]:
+            pub, best = np.asarray(acc["pub"]), np.asarray(acc["best"])
+            rows.append({"take": e.path, "frames": len(pub), "body": bodies[0],
+                         "published_cm": 100 * float(pub.mean()), "map_cm": 100 * float(np.mean(acc["map"])),
+                         "support_oracle_cm": 100 * float(best.mean()),
+                         "within_10cm": float(np.mean(pub < 0.1)),
+                         "support_oracle_within_10cm": float(np.mean(best < 0.1)),
+                         "legs_cm": 100 * float(np.mean(acc["legs"])), "arms_cm": 100 * float(np.mean(acc["arms"])),
+                         "legs_support_oracle_cm": 100 * float(np.mean(acc["legs_best"]))})
     keys = ("published_cm", "map_cm", "support_oracle_cm", "within_10cm", "support_oracle_within_10cm",
             "legs_cm", "arms_cm", "legs_support_oracle_cm")
     summary = {k: round(float(np.mean([r[k] for r in rows])), 3) for k in keys} if rows else {}

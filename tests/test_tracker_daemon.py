@@ -123,3 +123,19 @@ def test_eval_prints_the_json_contract(small_db) -> None:  # type: ignore[no-unt
     assert len(out["distance_evals_per_level"]) == 3
     # steady-state timing starts after the frame that ends initialisation (which may score bodies)
     assert out["steady_frames"] == out["tracked_frames"] - TrackerConfig().init_frames
+
+
+def test_evaluate_motion_shows_every_frame_to_its_observer(small_db) -> None:  # type: ignore[no-untyped-def]
+    from protocol.motion import load_motion
+    from tracker_service.evaluate import EvalOptions, evaluate_motion
+    from tracker_service.template_db import load_db
+
+    loaded = load_db(small_db[4], verify=False)
+    seen: list[tuple[float, str, bool]] = []
+    out = evaluate_motion(load_motion(SCRIPT, fps=30.0), loaded, TrackerConfig(distance="xor"),
+                          EvalOptions(frames=20, seed=3, empty_prefix=6),
+                          observe=lambda fr, st, res: seen.append((fr.timestamp, res.phase, res.joints is not None)))
+    assert len(seen) == 6 + 20  # the empty prefix and every motion frame, in order
+    assert [t for t, _, _ in seen] == sorted(t for t, _, _ in seen)
+    assert seen[0][1] == "learning" and seen[-1][1] == "tracking"
+    assert sum(j for _, _, j in seen) == out["tracked_frames"] > 0

@@ -19,8 +19,8 @@ from numpy.typing import NDArray
 
 from protocol.motion import Motion
 
-from .pipeline import TrackerConfig, TrackerState, new_state, process_frame
-from .scene import SceneConfig, SyntheticScene
+from .pipeline import FrameResult, TrackerConfig, TrackerState, new_state, process_frame
+from .scene import SceneConfig, SceneFrame, SyntheticScene
 from .template_db import LoadedDatabase
 from .tree_filter import initial_state
 
@@ -112,7 +112,8 @@ def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses
 
 
 def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, options: EvalOptions,
-                    progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+                    progress: Callable[[int, int], None] | None = None,
+                    observe: Callable[[SceneFrame, TrackerState, FrameResult], None] | None = None) -> dict[str, Any]:
     """Track a motion rendered as synthetic video and measure the errors.
 
     Parameters
@@ -122,6 +123,9 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
     config : TrackerConfig
     options : EvalOptions
     progress : callable(done, total), optional
+    observe : callable(frame, state, result), optional
+        Called after every processed frame with the rendered frame (image and ground truth), the
+        tracker's new state and its result (for diagnostics: ``bench/diag_tracker_support.py``).
 
     Returns
     -------
@@ -151,6 +155,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             fr = scene.frame(i)
             was_tracking = state.phase == "tracking"  # the frame that ends initialisation scores the bodies
             state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
+            if observe is not None:
+                observe(fr, state, res)
             if not fr.truth.present:
                 continue
             present += 1

@@ -130,7 +130,7 @@ class ClothParams:
     limit_sweeps: int = 1
     final_sweeps: int = 2
     final_rounds: int = 2
-    extra_rounds: int = 4
+    extra_rounds: int = 12
     extra_above: float = 0.08
     tethers: bool = True
     friction: float = 0.2

@@ -262,7 +262,8 @@ def _run_demo(args: argparse.Namespace, stop: threading.Event) -> int:
     threading.Thread(target=_pump, args=(proc.stderr, lines, not args.json), daemon=True).start()
     summary: dict[str, Any] = {"source": described, "endpoint": endpoint}
     try:
-        if not _wait_ready(proc, lines, 20.0, stop):
+        # the child warms its pipeline up first: ~2 s, or ~1 min when its kernels compile (first run)
+        if not _wait_ready(proc, lines, 300.0, stop):
             why = "interrupted" if stop.is_set() else f"exit code {proc.poll()}"
             print(f"{PROG} demo: the replay process did not start ({why})", file=sys.stderr)
             return 1

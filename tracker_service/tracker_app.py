@@ -36,6 +36,7 @@ from .pipeline import FrameResult, TrackerConfig, new_state, process_frame
 from .replay_app import wait_for_subscriber
 from .sources import FrameSource
 from .template_db import LoadedDatabase
+from .warmup import warm_up
 
 __all__ = ["RunOptions", "run_tracker"]
 
@@ -47,7 +48,8 @@ _STATE = {"learning": TrackerState.WAITING, "waiting": TrackerState.WAITING,
 
 @dataclass(frozen=True)
 class RunOptions:
-    """Daemon options: id, frame limit, duration, status period, real-time pacing."""
+    """Daemon options: id, frame limit, duration, status period, real-time pacing, and whether to
+    warm the pipeline up (:mod:`tracker_service.warmup`) before the first real frame."""
 
     tracker_id: str = "default"
     max_frames: int | None = None
@@ -56,6 +58,7 @@ class RunOptions:
     realtime: bool = True
     fps_hint: float = 30.0
     wait_for_subscriber: float = 0.0
+    warm_up: bool = True
 
 
 @dataclass
@@ -126,6 +129,12 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             entities.append(session.declare_queryable(body_key(tid), on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
             status_pub.put(status(TrackerState.STARTING))
+            if options.warm_up:  # compile (first run) or load every kernel before the first real frame
+                log.info("warming up the pipeline (the first run after an install compiles its kernels)")
+                wu = warm_up(loaded.db, loaded.body, loaded.camera, config, should_stop=stop.is_set)
+                log.info("warm-up: %d frames in %.1f s (reached %s)", wu.frames, wu.seconds, wu.phase)
+                if stop.is_set():
+                    return dict(counters.values)
             log.info("publishing poses of tracker %r on %s (database %s, %d templates)", tid, pose_key(tid),
                      loaded.body.name, loaded.db.n_leaves)
             if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):

@@ -37,11 +37,13 @@ from tracker_service.evaluate import EvalOptions, evaluate_motion
 from tracker_service.features import preprocess
 from tracker_service.pipeline import TrackerConfig
 from tracker_service.placement import observed_placement
+from tracker_service.shoes import ShoeParams
 from tracker_service.silhouette_distance import RunSet
 from tracker_service.silhouette_render import render_silhouette, silhouette_runs_batch
 from tracker_service.template_db import default_db_dir, load_db
 from tracker_service.tracker_cli import ensure_db
 from tracker_service.tree_filter import FilterDB, FilterParams, initial_state, step
+from tracker_service.warmup import warm_up
 
 
 def _rss_mb() -> float:
@@ -125,11 +127,22 @@ def main() -> int:
         "xor_silhouette_only": TrackerConfig(distance="xor", skin=None, smoothing=None, use_mean_pose=False,
                                              filter=FilterParams(height_hypothesis=False)),
         "xor_no_smoothing": TrackerConfig(distance="xor", smoothing=None),
+        "xor_no_shoes": TrackerConfig(distance="xor", shoes=None),
+        # the shoe cue in the filter's leaf likelihood too (FilterParams.shoe_weight), or only there
+        "xor_shoes_filter_02": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.02)),
+        "xor_shoes_filter_05": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.05)),
+        "xor_shoes_filter_only_05": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.05),
+                                                  shoes=ShoeParams(weight=0.0)),
         "xor_map_pose": TrackerConfig(distance="xor", use_mean_pose=False),
         "xor_no_height_hypothesis": TrackerConfig(distance="xor", filter=FilterParams(height_hypothesis=False)),
         # every node on its whole placement grid (no screening: the search before session 6)
         "xor_exhaustive": TrackerConfig(distance="xor", filter=FilterParams(screen=())),
+        # no selection: the person's own measurements given (the user enters them; --measurements)
+        "xor_given_height": TrackerConfig(distance="xor"),
+        "xor_given_measurements": TrackerConfig(distance="xor"),
     }
+    given = {"xor_given_height": ("height",),
+             "xor_given_measurements": ("height", "group", "chest", "waist", "hip", "shoulder", "arm", "leg")}
     if args.configs:
         wanted = args.configs.split(",")
         unknown = sorted(set(wanted) - set(configs))
@@ -137,12 +150,15 @@ def main() -> int:
             raise SystemExit(f"unknown --configs {unknown}; choose from {sorted(configs)}")
         configs = {k: v for k, v in configs.items() if k in wanted}
     bodies = tuple(m.name for m in BODY_MODELS)
+    for name in {c.distance: name for name, c in configs.items()}.values():  # each distance's kernels
+        warm_up(loaded.db, loaded.body, loaded.camera, replace(configs[name], body_candidates=bodies))
     rows: dict[str, list[dict[str, Any]]] = {k: [] for k in configs}
     for e in tqdm(pick, desc="held-out takes", disable=args.json):
         motion = load_motion(mocap_root() / e.path, fps=30.0)
         for name, cfg in configs.items():
             out = evaluate_motion(motion, loaded, replace(cfg, body_candidates=bodies),
-                                  EvalOptions(frames=args.frames, seed=args.seed, force_loss_every_s=3.0))
+                                  EvalOptions(frames=args.frames, seed=args.seed, force_loss_every_s=3.0,
+                                              subject_measurements=given.get(name, ())))
             out["take"] = e.path
             rows[name].append(out)
     summary = {}

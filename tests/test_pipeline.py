@@ -7,9 +7,10 @@ import pytest
 
 from protocol import fk
 from protocol.motion import ground
-from protocol.skeleton import JOINT_INDEX
+from protocol.skeleton import JOINT_INDEX, Body
 from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
+from tracker_service.given_body import given_body
 from tracker_service.pipeline import TrackerConfig, new_state, process_frame
 from tracker_service.silhouette_render import render_silhouette
 from tracker_service.template_db import load_db
@@ -32,13 +33,17 @@ def _frame(room: np.ndarray, mask: np.ndarray | None, rng: np.random.Generator) 
     return np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
 
 
-def test_phases_and_outputs(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+def _scene(small_db, rng: np.random.Generator, subject: Body):  # type: ignore[no-untyped-def]
+    """The fixture database, its camera, a room and the first motion's joints on ``subject``."""
     _, _, motions, _, path = small_db
     loaded = load_db(path)
-    cam = loaded.camera
-    room = _room(rng, cam)
-    subject = body_model("mLA").body
     truth = fk(ground(motions[0].poses, subject), subject)  # feet on the floor for this body
+    return loaded, loaded.camera, _room(rng, loaded.camera), truth
+
+
+def test_phases_and_outputs(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    subject = body_model("mLA").body
+    loaded, cam, room, truth = _scene(small_db, rng, subject)
     cfg = TrackerConfig(background_frames=8, body_candidates=("mSA", "mMA", "mLA", "mTA"), init_frames=3)
     st = new_state(loaded.body)
     phases = []
@@ -68,6 +73,53 @@ def test_phases_and_outputs(small_db, rng: np.random.Generator) -> None:  # type
     assert "initialising" in phases and phases[-1] == "tracking"
     assert st.body.name in ("mMA", "mLA", "mTA")  # body selection picks a model of about the right size
     assert np.median(errs) < 0.10
+
+
+def test_a_given_body_is_used_after_the_initialisation(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    given = given_body({"height": 1.76, "group": "men", "leg": 1.05, "arm": 0.95})
+    loaded, cam, room, truth = _scene(small_db, rng, given)
+    cfg = TrackerConfig(background_frames=6, init_frames=3, body=given)
+    st = new_state(loaded.body)
+    for _ in range(6):
+        st, res = process_frame(st, _frame(room, None, rng), loaded.db, loaded.body, cam, cfg)
+    changed = []
+    for f in range(0, 16, 2):
+        mask = render_silhouette(truth[f], given.capsule_radii, cam)
+        st, res = process_frame(st, _frame(room, mask, rng), loaded.db, loaded.body, cam, cfg)
+        changed.append(res.body_changed)
+    assert res.phase == "tracking" and changed.count(True) == 1
+    assert st.body is given and st.body_scale == pytest.approx(1.76 / loaded.body.height)
+    j = res.joints  # the published skeleton is the given body's
+    assert j is not None
+    for a, b in (("l_hip", "l_knee"), ("r_knee", "r_ankle"), ("l_shoulder", "l_elbow")):
+        bone = np.linalg.norm(j[JOINT_INDEX[b]] - j[JOINT_INDEX[a]])
+        assert bone == pytest.approx(given.bone_lengths[JOINT_INDEX[b]], abs=1e-6)
+    with pytest.raises(ValueError, match="not both"):
+        TrackerConfig(body=given, body_candidates=("mMA",))
+
+
+def test_the_shoes_colour_is_learned_while_initialising(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    subject = body_model("mMA").body
+    loaded, cam, room, truth = _scene(small_db, rng, subject)
+    cfg = TrackerConfig(background_frames=6, init_frames=3)
+    for shod in (False, True):
+        st = new_state(loaded.body)
+        for _ in range(6):
+            st, _res = process_frame(st, _frame(room, None, rng), loaded.db, loaded.body, cam, cfg)
+        for f in range(0, 12, 2):
+            mask = render_silhouette(truth[f], subject.capsule_radii, cam)
+            img = _frame(room, mask, rng)
+            if shod:  # the lowest rows of the person in another colour
+                ys = np.flatnonzero(mask.any(axis=1))
+                low = mask.copy()
+                low[: ys[-1] - 4] = False
+                img[low] = (20, 220, 230)
+            st, res = process_frame(st, img, loaded.db, loaded.body, cam, cfg)
+        assert res.phase == "tracking" and res.joints is not None and np.all(np.isfinite(res.joints))
+        if shod:
+            assert st.shoes is not None and np.allclose(st.shoes.mean, (20, 220, 230), atol=12)
+        else:
+            assert st.shoes is None  # shoes the colour of the legs: the cue is off
 
 
 def test_bad_frame_is_rejected(small_db) -> None:  # type: ignore[no-untyped-def]

@@ -32,7 +32,7 @@ def test_tracker_options_build_the_config() -> None:
 
     def ns(**kw: object) -> argparse.Namespace:
         base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
-                "no_smoothing": False, "pose": "mean"}
+                "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False}
         return argparse.Namespace(**(base | kw))
 
     cfg = _config(ns())
@@ -42,6 +42,23 @@ def test_tracker_options_build_the_config() -> None:
     cfg = _config(ns(max_heading=35.0, no_skin=True, no_smoothing=True, body="wTY"))
     assert cfg.filter.max_heading == pytest.approx(math.radians(35.0))
     assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)
+    assert cfg.shoes is not None and _config(ns(no_shoes=True)).shoes is None
     for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
         with pytest.raises(ValueError):
             _config(ns(**bad))
+    # the user's measurements build the body; no selection
+    cfg = _config(ns(measurements="height=1.83,group=men,leg=1.04"))
+    assert cfg.body_candidates == () and cfg.body is not None
+    assert cfg.body.height == pytest.approx(1.83)
+    assert _config(ns(measurements="subject")).body is None  # eval resolves it with the scene
+    with pytest.raises(ValueError, match="not both"):
+        _config(ns(measurements="height=1.7", body="mMA"))
+    with pytest.raises(ValueError, match="leg"):
+        _config(ns(measurements="height=1.7,leg=2"))
+    from tracker_service.tracker_cli import _subject_keys
+
+    assert _subject_keys(None) == () and _subject_keys("height=1.7") == ()
+    assert _subject_keys("subject:height,leg") == ("height", "leg") and "arm" in _subject_keys("subject")
+    for bad in ("subject:inseam", "subjects"):
+        with pytest.raises(ValueError):
+            _subject_keys(bad)

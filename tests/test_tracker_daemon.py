@@ -139,3 +139,30 @@ def test_evaluate_motion_shows_every_frame_to_its_observer(small_db) -> None:  #
     assert [t for t, _, _ in seen] == sorted(t for t, _, _ in seen)
     assert seen[0][1] == "learning" and seen[-1][1] == "tracking"
     assert sum(j for _, _, j in seen) == out["tracked_frames"] > 0
+
+
+def test_eval_can_give_the_tracker_the_persons_own_measurements(small_db) -> None:  # type: ignore[no-untyped-def]
+    from protocol.motion import load_motion
+    from protocol.skeleton import JOINT_INDEX
+    from tracker_service.evaluate import EvalOptions, evaluate_motion, subject_measurements
+    from tracker_service.given_body import given_body
+    from tracker_service.scene_subject import random_subject_spec
+    from tracker_service.template_db import load_db
+
+    loaded = load_db(small_db[4], verify=False)
+    states = []
+    cfg = TrackerConfig(distance="xor", body_candidates=("mMA",))  # replaced by the given body
+    out = evaluate_motion(load_motion(SCRIPT, fps=30.0), loaded, cfg,
+                          EvalOptions(frames=12, seed=3, empty_prefix=6, subject_measurements=("leg", "group")),
+                          observe=lambda fr, st, res: states.append(st))
+    spec = random_subject_spec(np.random.default_rng([3, 0]))  # the scene's person for seed 3
+    assert out["body_selected"] == "given"
+    assert states[-1].body.height == pytest.approx(spec.height)
+    assert states[-1].body_scale == pytest.approx(spec.height / loaded.body.height)
+    expected = given_body({"height": spec.height, "group": spec.group, "leg": spec.leg_ratio})
+    knee = JOINT_INDEX["l_knee"]
+    assert states[-1].body.bone_lengths[knee] == pytest.approx(expected.bone_lengths[knee])
+    assert subject_measurements(spec)["leg"] == spec.leg_ratio
+    with pytest.raises(ValueError, match="unknown measurement"):
+        evaluate_motion(load_motion(SCRIPT, fps=30.0), loaded, TrackerConfig(distance="xor"),
+                        EvalOptions(frames=2, seed=3, empty_prefix=2, subject_measurements=("inseam",)))

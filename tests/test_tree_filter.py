@@ -171,18 +171,18 @@ def test_screened_grid_evaluates_the_grid_only_for_the_best_nodes(rng: np.random
 
 
 def test_tempered_weights_hedge_between_modes() -> None:
-    from tracker_service.tree_filter import _mean_pose, _tempered
+    from tracker_service.tree_filter import mean_pose, tempered
 
     w = np.array([0.9, 0.09, 0.01])
-    assert _tempered(w, 1.0) is w
-    t = _tempered(w, 5.0)
+    assert tempered(w, 1.0) is w
+    t = tempered(w, 5.0)
     assert t.sum() == pytest.approx(1.0) and np.all(np.diff(t) < 0)  # same order, flatter
     assert t[0] < w[0] and t[2] > w[2]
     # two leaves differing in one joint angle: the tempered mean lies between them, nearer the best
     poses = np.zeros((2, POSE_SIZE))
     poses[1, 3 + 3 * 5] = 1.0  # a rotation of 1 rad about x of one joint
     for temp, lo, hi in ((1.0, 0.0, 0.15), (5.0, 0.3, 0.5)):
-        m = _mean_pose(poses, _tempered(np.array([0.9, 0.1]), temp))
+        m = mean_pose(poses, tempered(np.array([0.9, 0.1]), temp))
         assert lo < m[3 + 3 * 5] < hi
 
 

@@ -783,3 +783,106 @@ def leaf_prior_kernel(leaves: NDArray[np.int64], weights: NDArray[np.float64], n
         if hw != 0.0:
             for t in range(a, b):
                 prior[trans_idx[t]] += w * hw * np.float64(trans_p[t])
+
+
+@njit(cache=True, nogil=True)
+def feet_cost_kernel(su: NDArray[np.int64], sv: NDArray[np.int64], feet: NDArray[np.float64], height: int,
+                     width: int, cap: float, dead: float, forward: float, reverse: float) -> NDArray[np.float64]:
+    """The shoe cue's cost of templates' feet (:func:`tracker_service.shoes.feet_cost`; numpy
+    reference :func:`tracker_service.shoes.feet_cost_reference`).
+
+    Parameters
+    ----------
+    su, sv : (N,) int64
+        Columns and rows of the shoe pixels (N > 0).
+    feet : (K, 2, 2) float64
+        Left/right foot centres ``(u, v)`` of K templates.
+    height, width : int
+        The image's size: a foot rounded to a pixel outside it is ``cap`` from every shoe.
+    cap, dead, forward, reverse : float
+
+    Returns
+    -------
+    (K,) float64
+        ``forward * sum_f min(d(round(u_f)), cap)^2 + reverse * mean_p max(min(|p - u_f*|, cap) - dead, 0)^2``,
+        ``d`` the distance to the nearest shoe pixel and ``u_f*`` the foot nearest pixel ``p``.
+    """
+    k, n = feet.shape[0], su.shape[0]
+    out = np.empty(k)
+    for i in range(k):
+        fwd = 0.0
+        for f in range(2):
+            ui, vi = np.rint(feet[i, f, 0]), np.rint(feet[i, f, 1])
+            best = np.inf
+            if not (0.0 <= ui < width and 0.0 <= vi < height):
+                n_in = 0
+            else:
+                n_in = n
+            for p in range(n_in):
+                du, dv = ui - su[p], vi - sv[p]
+                d2 = du * du + dv * dv
+                if d2 < best:
+                    best = d2
+            d = min(np.sqrt(best), cap)
+            fwd += d * d
+        rev = 0.0
+        for p in range(n):
+            near = np.inf
+            for f in range(2):
+                du, dv = feet[i, f, 0] - su[p], feet[i, f, 1] - sv[p]
+                near = min(near, np.sqrt(du * du + dv * dv))
+            e = max(min(near, cap) - dead, 0.0)
+            rev += e * e
+        out[i] = forward * fwd + reverse * (rev / n)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def shoe_pixels_kernel(frame: NDArray[np.uint8], mask: NDArray[np.bool_], y0: int, y1: int, x0: int, x1: int,
+                       mean: NDArray[np.float64], inv_cov: NDArray[np.float64],
+                       threshold: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Shoe pixels of the box ``[y0, y1) x [x0, x1)``: silhouette pixels whose colour is within
+    ``threshold`` (squared Mahalanobis) of the shoes', opened once with the 4-neighbour cross
+    (pixels outside the box count as background), in row-major order. Numpy reference:
+    :func:`tracker_service.shoes.shoe_mask`.
+
+    Parameters
+    ----------
+    frame : (H, W, 3) uint8
+    mask : (H, W) bool
+    y0, y1, x0, x1 : int
+    mean : (3,) float64
+    inv_cov : (3, 3) float64
+    threshold : float
+
+    Returns
+    -------
+    su, sv : (N,) int64
+        Columns and rows.
+    """
+    hh, ww = y1 - y0, x1 - x0
+    hit = np.zeros((hh + 2, ww + 2), np.bool_)
+    for y in range(hh):
+        for x in range(ww):
+            if mask[y0 + y, x0 + x]:
+                d0 = frame[y0 + y, x0 + x, 0] - mean[0]
+                d1 = frame[y0 + y, x0 + x, 1] - mean[1]
+                d2 = frame[y0 + y, x0 + x, 2] - mean[2]
+                q = (d0 * (inv_cov[0, 0] * d0 + inv_cov[0, 1] * d1 + inv_cov[0, 2] * d2)
+                     + d1 * (inv_cov[1, 0] * d0 + inv_cov[1, 1] * d1 + inv_cov[1, 2] * d2)
+                     + d2 * (inv_cov[2, 0] * d0 + inv_cov[2, 1] * d1 + inv_cov[2, 2] * d2))
+                hit[y + 1, x + 1] = q < threshold
+    ero = np.zeros((hh + 2, ww + 2), np.bool_)
+    for y in range(1, hh + 1):
+        for x in range(1, ww + 1):
+            ero[y, x] = hit[y, x] and hit[y - 1, x] and hit[y + 1, x] and hit[y, x - 1] and hit[y, x + 1]
+    su = np.empty(hh * ww, np.int64)
+    sv = np.empty(hh * ww, np.int64)
+    n = 0
+    for y in range(1, hh + 1):
+        for x in range(1, ww + 1):
+            if ero[y, x] or ero[y - 1, x] or ero[y + 1, x] or ero[y, x - 1] or ero[y, x + 1]:
+                su[n] = x0 + x - 1
+                sv[n] = y0 + y - 1
+                n += 1
+    return su[:n], sv[:n]

@@ -19,12 +19,14 @@ from numpy.typing import NDArray
 
 from protocol.motion import Motion
 
+from .given_body import given_body
 from .pipeline import FrameResult, TrackerConfig, TrackerState, new_state, process_frame
 from .scene import SceneConfig, SceneFrame, SyntheticScene
+from .scene_subject import SubjectSpec
 from .template_db import LoadedDatabase
 from .tree_filter import initial_state
 
-__all__ = ["EvalOptions", "evaluate_motion", "reacquisition_times"]
+__all__ = ["EvalOptions", "evaluate_motion", "reacquisition_times", "subject_measurements"]
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +54,11 @@ class EvalOptions:
     in_place_travel_m : float
         Motions whose root travels farther than this are played on the spot (a treadmill), so
         the person stays in view.
+    subject_measurements : tuple of str
+        Give the tracker these of the scene person's own measurements (keys of
+        :func:`subject_measurements`: ``height``, ``group``, girths, ``shoulder``, ``arm``, ``leg``)
+        instead of letting it choose a body model: what a user who enters them gets. Empty: the
+        tracker's own choice.
     """
 
     frames: int | None = None
@@ -60,6 +67,13 @@ class EvalOptions:
     force_loss_every_s: float = 0.0
     fps: float = 30.0
     in_place_travel_m: float = 2.0
+    subject_measurements: tuple[str, ...] = ()
+
+
+def subject_measurements(spec: SubjectSpec) -> dict[str, Any]:
+    """The synthetic person's measurements in the form of :func:`~tracker_service.given_body.parse_measurements`."""
+    return {"height": spec.height, "group": spec.group, "chest": spec.chest, "waist": spec.waist, "hip": spec.hip,
+            "shoulder": spec.shoulder_frac * spec.height, "arm": spec.arm_ratio, "leg": spec.leg_ratio}
 
 
 def _stats(v: list[float]) -> dict[str, float]:
@@ -139,6 +153,12 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
     try:
         n = scene.n_frames if options.frames is None else min(scene.n_frames, options.empty_prefix + options.frames)
         cfg = replace(config, background_frames=options.empty_prefix)
+        if options.subject_measurements:
+            known = subject_measurements(scene.subject.spec)
+            if unknown := set(options.subject_measurements) - set(known):
+                raise ValueError(f"unknown measurement(s) {sorted(unknown)}; choose from {', '.join(known)}")
+            given = {k: known[k] for k in ("height", *options.subject_measurements)}
+            cfg = replace(cfg, body_candidates=(), body=given_body(given))
         state: TrackerState = new_state(loaded.body)
         errs, root_errs, errs2d, tracked = [], [], [], 0
         present = 0

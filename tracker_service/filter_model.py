@@ -175,6 +175,9 @@ class FilterParams:
     skin_max_fraction : float
         The cue is off for frames whose silhouette is more than this fraction skin (a skin-coloured
         shirt).
+    shoe_weight : float
+        Weight of the shoe cue's cost in the leaf level's likelihood (``step(..., shoe_cost=)``);
+        0: the cue only re-weights the published legs (:mod:`tracker_service.shoes`).
     """
 
     sigma: tuple[float, ...] = (0.01, 0.01, 0.01)
@@ -213,6 +216,7 @@ class FilterParams:
     skin_cover_weight: float = 6.0
     skin_cover_from_level: int = 2
     skin_cover_radius_px: float = 6.0
+    shoe_weight: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -275,6 +279,10 @@ class Estimate:
     support_cost : (K,) float64
         Each support leaf's cost at that placement: eq. 6's negative log likelihood plus the
         placement prior and the skin cue.
+    support_leaves : (K,) int64
+        The support leaves themselves (``FilterState.leaves`` before any re-initialisation).
+    support_weights : (K,) float64
+        Their posterior weights (sum 1), untempered.
     """
 
     leaf: int
@@ -288,3 +296,5 @@ class Estimate:
     reinitialised: bool
     support_places: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     support_cost: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    support_leaves: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    support_weights: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))

@@ -29,7 +29,15 @@ from .background import BackgroundModel, BackgroundParams, learn_background, sub
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
 from .features import Distance, preprocess
-from .placement import feet_scale, observed_placement, placement_to_root, scaled_placement, silhouette_rows
+from .placement import (
+    feet_in_view,
+    feet_scale,
+    observed_placement,
+    placement_to_root,
+    scaled_placement,
+    silhouette_rows,
+)
+from .shoes import ShoeModel, ShoeParams, band_pixels, feet_cost, foot_points, learn_shoes, reweight_legs, shoe_pixels
 from .skin import SkinModel, observe_skin
 from .smoothing import OneEuroParams, SmoothState, smooth_pose
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
@@ -63,6 +71,11 @@ class TrackerConfig:
         Frames of the initialising phase (body-model selection averages over them).
     body_candidates : tuple of str
         Body models considered by the selection (empty: keep the database's body).
+    body : Body or None
+        A given body (the user's measurements, :mod:`tracker_service.given_body`) used from the
+        end of the initialisation instead of a selection: templates scaled by its height over the
+        database body's, its skeleton in the published joints. Not together with
+        ``body_candidates``.
     use_mean_pose : bool
         Publish the posterior-mean pose (tempered, ``FilterParams.mean_temperature``) rather than
         the MAP leaf's pose: on an ambiguous silhouette the mean hedges between the modes.
@@ -72,6 +85,9 @@ class TrackerConfig:
     skin : SkinModel or None
         Skin colour locus of the hand cue (:mod:`tracker_service.skin`); None: silhouettes only
         (the paper's observation model).
+    shoes : ShoeParams or None
+        The shoe cue (:mod:`tracker_service.shoes`): the shoes' colour learned while initialising
+        re-weights the published pose's legs; None: off.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -90,11 +106,17 @@ class TrackerConfig:
     start_radius: float = 0.25
     init_frames: int = 5
     body_candidates: tuple[str, ...] = ()
+    body: Body | None = None
     use_mean_pose: bool = True
     depth_from_feet: bool = True
     skin: SkinModel | None = field(default_factory=SkinModel)
+    shoes: ShoeParams | None = field(default_factory=ShoeParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
+
+    def __post_init__(self) -> None:
+        if self.body is not None and self.body_candidates:
+            raise ValueError("give either a body or body candidates to choose from, not both")
 
 
 @dataclass(frozen=True)
@@ -113,6 +135,8 @@ class TrackerState:
     reinits: int = 0
     clock: float = 0.0
     smooth: SmoothState | None = None
+    shoe_samples: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
+    shoes: ShoeModel | None = None
 
 
 @dataclass(frozen=True)
@@ -210,7 +234,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         if not _near_centre(mask, config.start_radius):
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
         state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={},
-                        statures=())
+                        statures=(), shoe_samples=(), shoes=None)
     if not mask.any():  # the person left: wait for them to come back to the centre
         state = replace(state, phase="waiting", filter=initial_state())
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
@@ -223,7 +247,17 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if not config.occlusion:
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
     skin = observe_skin(frame, mask, config.skin) if config.skin is not None else None
-    fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask))
+    shoe_px = None
+    leaf_shoe_cost = None
+    if state.phase == "tracking" and state.shoes is not None and config.shoes is not None and len(db.leaf_points):
+        shoe_px = shoe_pixels(frame, mask, state.shoes, config.shoes)
+        shoe_params = config.shoes
+
+        def leaf_shoe_cost(leaves: NDArray[np.int64], places: NDArray[np.float64]) -> NDArray[np.float64] | None:
+            assert shoe_px is not None
+            return feet_cost(shoe_px, foot_points(db.leaf_points[leaves], places, db.center), shoe_params, mask.shape)
+
+    fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask), leaf_shoe_cost)
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     body_changed = False
@@ -231,6 +265,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     frames_in_phase = state.frames_in_phase + 1
     scores = state.body_scores
     statures = state.statures
+    shoe_samples, shoes = state.shoe_samples, state.shoes
+    if phase == "initialising" and config.shoes is not None and feet_in_view(mask):
+        shoe_samples = (*shoe_samples, band_pixels(frame, mask, config.shoes))
     body, scale = state.body, state.body_scale
     if phase == "initialising" and config.body_candidates and raw is not None:
         if int(np.argmax(fk(pose, db_body)[:, 1])) == JOINT_INDEX["head_top"]:  # head on top: height measurable
@@ -245,11 +282,27 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             choice: BodyChoice = BodyChoice.from_scores(
                 scores, db_body, float(np.median(statures)) if statures else float("nan"))
             body, scale = choice.body, choice.scale
-            body_changed = body.name != state.body.name
+        elif config.body is not None:
+            body, scale = config.body, config.body.height / db_body.height
+        if config.body_candidates or config.body is not None:
+            body_changed = body.name != state.body.name or scale != state.body_scale
             if body_changed:  # restart the filter at the new size
                 fstate = initial_state(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
         phase = "tracking"
         frames_in_phase = 0
+        if config.shoes is not None and shoe_samples:
+            shoes = learn_shoes(np.concatenate([a for a, _ in shoe_samples]),
+                                np.concatenate([b for _, b in shoe_samples]), config.shoes)
+        shoe_samples = ()
+    if shoe_px is None and phase == "tracking" and shoes is not None and config.shoes is not None:
+        shoe_px = shoe_pixels(frame, mask, shoes, config.shoes)  # the frame that learned them
+    if (shoe_px is not None and config.shoes is not None and config.use_mean_pose and len(est.support_leaves)
+            and config.shoes.weight > 0 and len(db.leaf_points)):
+        cost = feet_cost(shoe_px, foot_points(db.leaf_points[est.support_leaves], est.support_places, db.center),
+                         config.shoes, mask.shape)
+        if cost is not None:
+            pose = reweight_legs(pose, db.leaf_poses[est.support_leaves].astype(np.float64), est.support_weights,
+                                 cost, config.filter.mean_temperature, config.shoes)
     place = est.placement.copy()
     if config.depth_from_feet:  # the feet line measures depth better than the template fit's scale
         s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)
@@ -265,7 +318,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     joints = fk(pose, body)
     reinits = state.reinits + int(est.reinitialised)
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
-                    statures=statures, frames_in_phase=frames_in_phase, reinits=reinits, smooth=smooth)
+                    statures=statures, frames_in_phase=frames_in_phase, reinits=reinits, smooth=smooth,
+                    shoe_samples=shoe_samples, shoes=shoes)
     t4 = time.perf_counter()
     ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
            "total": (t4 - t0) * 1e3}

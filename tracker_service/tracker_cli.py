@@ -75,6 +75,12 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                                                     "built on first use)")
         p.add_argument("--body", default="auto", metavar="auto|NAME",
                        help="body model: auto (chosen by silhouette match on the first frames) or a name")
+        p.add_argument("--measurements", metavar="K=V,...",
+                       help="build the body from the user's measurements instead of choosing one: height=M "
+                            "(required), group=men|women|children, chest=M, waist=M, hip=M, weight=KG, "
+                            "shoulder=M (joint spacing), arm=RATIO, leg=RATIO (1.0 = the family's proportions)"
+                            + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
+                               if p.prog.endswith("eval") else ""))
         p.add_argument("--estimator", choices=["tree"], default="tree", help="pose estimator (default: tree)")
         p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
                        help="silhouette distance (default: xor, the most accurate in our measurements; the "
@@ -84,6 +90,7 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                        help="the user faces the camera within DEG degrees (e.g. 35 for the game): poses turned "
                             "further get no prior (default: any heading)")
         p.add_argument("--no-skin", action="store_true", help="silhouettes only (no skin colour cue for the hands)")
+        p.add_argument("--no-shoes", action="store_true", help="no shoe colour cue for the legs")
         p.add_argument("--no-smoothing", action="store_true", help="publish the raw per-frame estimate "
                                                                   "(no One Euro smoothing)")
         p.add_argument("--pose", choices=("mean", "map"), default="mean",
@@ -204,6 +211,7 @@ def _cmd_build_db(args: argparse.Namespace) -> int:
 
 def _config(args: argparse.Namespace) -> Any:
     from .body_models import BODY_MODELS
+    from .given_body import given_body, parse_measurements
     from .pipeline import TrackerConfig
     from .tree_filter import FilterParams
 
@@ -212,13 +220,22 @@ def _config(args: argparse.Namespace) -> Any:
         raise ValueError(f"unknown body model {args.body!r}; choose auto or one of {', '.join(names)}")
     # auto: the family is scored on the first frames; NAME: that model (templates scaled to its height)
     cands = tuple(names) if args.body == "auto" else (args.body,)
+    given = None
+    if args.measurements:
+        if args.body != "auto":
+            raise ValueError("give either --body NAME or --measurements, not both")
+        cands = ()
+        if not args.measurements.startswith("subject"):  # eval's 'subject' is resolved with the scene
+            given = given_body(parse_measurements(args.measurements))
     if args.max_heading is not None and not 0.0 < args.max_heading <= 180.0:
         raise ValueError(f"--max-heading must be in (0, 180] degrees, got {args.max_heading}")
-    cfg = TrackerConfig(distance=args.distance, occlusion=not args.no_occlusion, body_candidates=cands,
+    cfg = TrackerConfig(distance=args.distance, occlusion=not args.no_occlusion, body_candidates=cands, body=given,
                         filter=FilterParams(max_heading=None if args.max_heading is None
                                             else math.radians(args.max_heading)))
     if args.no_skin:
         cfg = replace(cfg, skin=None)
+    if args.no_shoes:
+        cfg = replace(cfg, shoes=None)
     if args.no_smoothing:
         cfg = replace(cfg, smoothing=None)
     if args.pose == "map":
@@ -268,16 +285,33 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return int(outcome.get("rc", 0))
 
 
+def _subject_keys(spec: str | None) -> tuple[str, ...]:
+    """``subject`` -> every measurement of the scene's person; ``subject:height,leg`` -> those."""
+    if not spec or not spec.startswith("subject"):
+        return ()
+    head, _, keys = spec.partition(":")
+    if head != "subject":
+        raise ValueError(f"--measurements {spec!r}: write subject or subject:KEY,...")
+    known = ("height", "group", "chest", "waist", "hip", "shoulder", "arm", "leg")
+    chosen = tuple(k.strip() for k in keys.split(",") if k.strip()) if keys else known
+    if bad := sorted(set(chosen) - set(known)):
+        raise ValueError(f"--measurements subject: unknown key(s) {bad}; choose from {', '.join(known)}")
+    return chosen
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from protocol.motion import load_motion
 
     from .evaluate import EvalOptions, evaluate_motion
+    from .warmup import warm_up
 
     path = args.bvh or args.script
     motion = load_motion(path, fps=30.0)
     loaded = ensure_db(args.db)
     cfg = _config(args)
-    opts = EvalOptions(frames=args.frames, seed=args.seed, force_loss_every_s=args.force_loss_every)
+    warm_up(loaded.db, loaded.body, loaded.camera, cfg)  # kernels compiled before the clock starts
+    opts = EvalOptions(frames=args.frames, seed=args.seed, force_loss_every_s=args.force_loss_every,
+                       subject_measurements=_subject_keys(args.measurements))
 
     def progress(done: int, total: int) -> None:
         if not args.json and sys.stderr.isatty():

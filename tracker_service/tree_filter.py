@@ -46,7 +46,7 @@ from .filter_reference import heading_mass_reference
 from .silhouette_distance import evaluate_template_grid
 from .skin import HAND_PARTS, SkinObservation, skin_cost
 
-__all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "step"]
+__all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "mean_pose", "step", "tempered"]
 
 
 def initial_state(placement: NDArray[np.float64] | None = None, reinits: int = 0) -> FilterState:
@@ -205,7 +205,7 @@ def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]]
     return cost.reshape(n, -1), places.reshape(n, -1, 3), n0 + n1
 
 
-def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
+def mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
     """Weighted mean of poses ``(n, P)``: root averaged, rotations as the normalised weighted sum
     of quaternions on one hemisphere (numba; reference: filter_reference.mean_pose_reference).
 
@@ -216,7 +216,7 @@ def _mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np
     return mean_pose_kernel(np.ascontiguousarray(poses, np.float64), np.ascontiguousarray(w, np.float64))
 
 
-def _tempered(w: NDArray[np.float64], temperature: float) -> NDArray[np.float64]:
+def tempered(w: NDArray[np.float64], temperature: float) -> NDArray[np.float64]:
     """Weights ``w ** (1 / T)`` renormalised (``T`` = 1: ``w`` itself)."""
     if temperature == 1.0:
         return w
@@ -311,7 +311,9 @@ def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArr
 
 def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
          observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None,
-         observed_rows: NDArray[np.float64] | None = None) -> tuple[FilterState, Estimate]:
+         observed_rows: NDArray[np.float64] | None = None,
+         shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None = None,
+         ) -> tuple[FilterState, Estimate]:
     """One frame of tree-based filtering.
 
     Parameters
@@ -329,6 +331,10 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     observed_rows : (2,) float, optional
         Top and bottom rows of the silhouette (:func:`tracker_service.placement.silhouette_rows`):
         a second placement hypothesis per node from the silhouette's height (a body off the floor).
+    shoe_cost : callable, optional
+        ``shoe_cost(leaves (n,) int64, places (n, 3)) -> (n,) float64 or None``: the shoe cue's
+        cost of leaves at placements (:func:`tracker_service.shoes.feet_cost`), added to eq. 6's
+        negative log likelihood at the leaf level times ``params.shoe_weight``.
 
     Returns
     -------
@@ -397,6 +403,15 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
                                            cols[lvl] if cols else np.zeros(0), cols[lvl + 1] if cols else np.zeros(0),
                                            bool(cols))
     leaves = nodes
+    shoe_c = None
+    if shoe_cost is not None and params.shoe_weight > 0:
+        c = shoe_cost(leaves, node_place)
+        if c is not None:
+            shoe_c = params.shoe_weight * (c - c.min())
+            cost = cost + shoe_c
+            logpost = np.log(np.maximum(post, 1e-300)) - shoe_c
+            post = np.exp(logpost - logpost.max())
+            post /= post.sum()
     order = np.argsort(-post)
     # refine the placement of the best leaves at full resolution
     top = order[: params.refine]
@@ -406,6 +421,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs, sil_rows, s_range)
     total = _cost(d_ref, places, top_pred, params.sigma[-1], params, motion_scale)
     total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
+    if shoe_c is not None:
+        total = total + shoe_c[top, None]
     best = np.argmin(total, axis=1)
     rows = np.arange(len(top))
     lp = np.log(np.maximum(post[top], 1e-300)) + cost[top] - total[rows, best]
@@ -426,11 +443,12 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         new_state = initial_state(place, state.reinits + 1)
     est = Estimate(
         leaf=map_leaf, pose_map=db.leaf_poses[map_leaf].astype(np.float64),
-        pose_mean=_mean_pose(poses, _tempered(w, params.mean_temperature)),
+        pose_mean=mean_pose(poses, tempered(w, params.mean_temperature)),
         placement=place, distance=dist,
         confidence=float(np.exp(-0.5 * (dist / params.confidence_scale) ** 2)),
         visibility=vis.astype(np.float32), evaluations=tuple(evals), reinitialised=reinit,
-        support_places=node_place[sup], support_cost=cost[sup],
+        support_places=node_place[sup], support_cost=cost[sup], support_leaves=np.asarray(sup_leaves, np.int64),
+        support_weights=w,
     )
     return new_state, est
 

@@ -37,7 +37,6 @@ from tracker_service.evaluate import EvalOptions, evaluate_motion
 from tracker_service.features import preprocess
 from tracker_service.pipeline import TrackerConfig
 from tracker_service.placement import observed_placement
-from tracker_service.shoes import ShoeParams
 from tracker_service.silhouette_distance import RunSet
 from tracker_service.silhouette_render import render_silhouette, silhouette_runs_batch
 from tracker_service.template_db import default_db_dir, load_db
@@ -128,11 +127,8 @@ def main() -> int:
                                              filter=FilterParams(height_hypothesis=False)),
         "xor_no_smoothing": TrackerConfig(distance="xor", smoothing=None),
         "xor_no_shoes": TrackerConfig(distance="xor", shoes=None),
-        # the shoe cue in the filter's leaf likelihood too (FilterParams.shoe_weight), or only there
-        "xor_shoes_filter_02": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.02)),
-        "xor_shoes_filter_05": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.05)),
-        "xor_shoes_filter_only_05": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.05),
-                                                  shoes=ShoeParams(weight=0.0)),
+        # the shoe cue only re-weighting the published legs, not in the filter's leaf likelihood
+        "xor_shoes_publish_only": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.0)),
         "xor_map_pose": TrackerConfig(distance="xor", use_mean_pose=False),
         "xor_no_height_hypothesis": TrackerConfig(distance="xor", filter=FilterParams(height_hypothesis=False)),
         # every node on its whole placement grid (no screening: the search before session 6)

@@ -232,3 +232,35 @@ def test_motion_prior_kernel_matches_numpy_reference(small_db, rng: np.random.Ge
             ref = motion_prior_reference(leaves, w, db, inv_var, hw)
             assert ref.sum() == pytest.approx(1.0)  # the mass of the support is conserved
             np.testing.assert_allclose(fast, ref, rtol=1e-10, atol=1e-15)
+
+
+def test_the_shoe_cost_reweights_the_leaf_posterior(small_db) -> None:  # type: ignore[no-untyped-def]
+    """``step(..., shoe_cost=)`` adds ``shoe_weight * (cost - min)`` to the leaves' negative log
+    likelihood: a leaf the cue favours gains weight, nothing changes at weight 0 or without a cue."""
+    db, _, motions, _, _ = small_db
+    cam = default_camera()
+    subject = body_model("mLA").body
+    mask = render_silhouette(fk(motions[0].poses[10], subject), subject.capsule_radii, cam)
+    feats, obs = preprocess(mask), observed_placement(mask, cam)
+    st, _ = step(initial_state(), db, feats, FilterParams(), obs)
+    base_st, base = step(st, db, feats, FilterParams(), obs)
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+
+    fav = int(base_st.leaves[np.argsort(-base_st.weights)[1]])  # the runner-up
+
+    def favour_last(leaves: np.ndarray, places: np.ndarray) -> np.ndarray:
+        seen.append((leaves.copy(), places.copy()))
+        return np.where(leaves == fav, 0.0, 200.0)
+
+    for weight, fn in ((0.0, favour_last), (0.02, lambda leaves, places: None)):
+        st0, est0 = step(st, db, feats, FilterParams(shoe_weight=weight), obs, shoe_cost=fn)
+        np.testing.assert_array_equal(st0.leaves, base_st.leaves)
+        np.testing.assert_array_equal(st0.weights, base_st.weights)
+        assert est0.leaf == base.leaf
+    assert not seen  # weight 0: the cue is not even computed
+    st1, est1 = step(st, db, feats, FilterParams(shoe_weight=0.05), obs, shoe_cost=favour_last)
+    (leaves, places), = seen
+    assert places.shape == (len(leaves), 3) and fav in leaves
+    w0 = dict(zip(base_st.leaves.tolist(), base_st.weights.tolist(), strict=True)).get(fav, 0.0)
+    w1 = dict(zip(st1.leaves.tolist(), st1.weights.tolist(), strict=True)).get(fav, 0.0)
+    assert w1 > w0 and w1 > 0.5 and est1.leaf == fav  # exp(-0.05 * 200): the others lose a factor e^10

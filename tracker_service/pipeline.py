@@ -86,8 +86,9 @@ class TrackerConfig:
         Skin colour locus of the hand cue (:mod:`tracker_service.skin`); None: silhouettes only
         (the paper's observation model).
     shoes : ShoeParams or None
-        The shoe cue (:mod:`tracker_service.shoes`): the shoes' colour learned while initialising
-        re-weights the published pose's legs; None: off.
+        The shoe cue (:mod:`tracker_service.shoes`): the shoes' colour learned while initialising;
+        each frame's shoe pixels weigh the leaves in the filter (``FilterParams.shoe_weight``) and
+        re-weight the published pose's legs (``ShoeParams.weight``); None: off.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.

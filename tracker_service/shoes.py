@@ -14,12 +14,13 @@ silhouette, and scores where the filter's support leaves put the feet:
 
 ``u_f`` is a foot's centre (mid-point of ankle and toe) moved by the leaf's placement. The forward
 term asks whether the template's feet stand on shoes, the reverse term whether every shoe is
-explained by a foot (the back shoe of a long stride, left bare by a short-stride template). The
+explained by a foot (the back shoe of a long stride, left bare by a short-stride template). The cost
+enters the filter's leaf likelihood with a small weight (``FilterParams.shoe_weight``), and the
 published pose's legs are the support's posterior mean re-weighted by ``exp(-weight * cost)``
-(:func:`reweight_legs`); the rest of the pose, and the filter's own posterior, are unchanged.
+(:func:`reweight_legs`).
 When the shoes' colour is too close to the legs' (e.g. black shoes under black trousers) the cue
 is off for that person (:func:`learn_shoes` returns None). Measured in ``docs/TRACKER.md``
-(session 13).
+(sessions 13-14).
 """
 
 from __future__ import annotations

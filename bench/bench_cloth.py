@@ -36,6 +36,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _host import host_probe  # noqa: E402  (bench/ is the script's folder)
+
 from cloth_client.cloth import ClothParams, build_model, initial_state, step  # noqa: E402
 from cloth_client.collision import CapsuleTrack  # noqa: E402
 from cloth_client.garment import DEFAULT_PARTICLES, make_sheet  # noqa: E402
@@ -148,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_cloth" / "results.json"))
     args = ap.parse_args(argv)
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                                       "processor": platform.processor() or platform.machine()}}
+                                       "processor": platform.processor() or platform.machine(),
+                                       "host_probe_s": host_probe()}}
     if not args.skip_speed:
         print("speed:", flush=True)
         res["speed"] = speed(tuple(int(n) for n in args.rt_particles.split(",")))

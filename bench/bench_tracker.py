@@ -25,6 +25,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from _host import host_probe  # bench/ is the script's folder
 from tqdm import tqdm
 
 from protocol import fk
@@ -111,7 +112,7 @@ def main() -> int:
     rss0 = _rss_mb()
     full = load_db(default_db_dir(), verify=False, mmap=False)
     res: dict[str, Any] = {"machine": f"{platform.node()} {platform.machine()}", "python": platform.python_version(),
-                           "pinned_cpu": args.cpu if args.cpu >= 0 else None,
+                           "host_probe_s": host_probe(), "pinned_cpu": args.cpu if args.cpu >= 0 else None,
                            "db_rss_mb": round(_rss_mb() - rss0, 1), "templates": loaded.db.n_leaves,
                            "tree_levels": loaded.db.tree.level_sizes}
     del full

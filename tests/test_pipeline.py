@@ -94,6 +94,9 @@ def test_a_given_body_is_used_after_the_initialisation(small_db, rng: np.random.
     for a, b in (("l_hip", "l_knee"), ("r_knee", "r_ankle"), ("l_shoulder", "l_elbow")):
         bone = np.linalg.norm(j[JOINT_INDEX[b]] - j[JOINT_INDEX[a]])
         assert bone == pytest.approx(given.bone_lengths[JOINT_INDEX[b]], abs=1e-6)
+    # the root is raised for the longer legs: the feet stay on the floor, not 4 cm through it
+    feet = [JOINT_INDEX[n] for n in ("l_ankle", "l_toe", "r_ankle", "r_toe")]
+    assert abs(j[feet, 1].min() - truth[14][feet, 1].min()) < 0.02
     with pytest.raises(ValueError, match="not both"):
         TrackerConfig(body=given, body_candidates=("mMA",))
 
@@ -120,6 +123,81 @@ def test_the_shoes_colour_is_learned_while_initialising(small_db, rng: np.random
             assert st.shoes is not None and np.allclose(st.shoes.mean, (20, 220, 230), atol=12)
         else:
             assert st.shoes is None  # shoes the colour of the legs: the cue is off
+
+
+def _shod(room: np.ndarray, mask: np.ndarray, rng: np.random.Generator, shoes: tuple[int, int, int]) -> np.ndarray:
+    img = _frame(room, mask, rng)
+    ys = np.flatnonzero(mask.any(axis=1))
+    low = mask.copy()
+    low[: ys[-1] - 4] = False
+    img[low] = shoes
+    return img
+
+
+def test_the_shoe_cue_weighs_the_filter_and_the_published_legs(small_db, rng: np.random.Generator,
+                                                                monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import tracker_service.pipeline as pl
+    from tracker_service.filter_model import FilterParams
+    from tracker_service.shoes import ShoeParams
+
+    subject = body_model("mMA").body
+    loaded, cam, room, truth = _scene(small_db, rng, subject)
+    empty = [_frame(room, None, rng) for _ in range(6)]
+    masks = [render_silhouette(truth[f], subject.capsule_radii, cam) for f in range(0, 40, 2)]
+    frames = empty + [_shod(room, m, rng, (20, 220, 230)) for m in masks]
+    calls: list[np.ndarray] = []
+    real = pl.feet_cost
+
+    def recording(shoes, feet, params, shape=None):  # type: ignore[no-untyped-def]
+        calls.append(feet.copy())
+        return real(shoes, feet, params, shape)
+
+    def run(cfg: TrackerConfig) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        st = new_state(loaded.body)
+        poses, weights = [], []
+        for i, img in enumerate(frames):
+            st, res = process_frame(st, img, loaded.db, loaded.body, cam, cfg, i / 30)
+            if res.phase == "tracking" and res.pose is not None:
+                poses.append(res.pose.copy())
+                weights.append(np.sort(st.filter.weights))
+        assert st.shoes is not None and len(poses) >= 10
+        return poses, weights
+
+    monkeypatch.setattr(pl, "feet_cost", recording)
+    base = TrackerConfig(background_frames=6, init_frames=3)
+    poses, weights = run(base)
+    # the cue is computed on feet placed where the templates stand: within the person's box
+    assert calls
+    bottom = max(int(np.flatnonzero(m.any(axis=1))[-1]) for m in masks)
+    for feet in calls:  # (K, 2 feet, (u, v))
+        assert bottom - 40 < np.median(feet[..., 1]) < bottom + 15
+    # each use of the cue changes what it should: the filter's weights, the published legs
+    _, w_nof = run(TrackerConfig(background_frames=6, init_frames=3, filter=FilterParams(shoe_weight=0.0)))
+    p_nol, w_nol = run(TrackerConfig(background_frames=6, init_frames=3, shoes=ShoeParams(weight=0.0)))
+    assert any(a.shape != b.shape or not np.allclose(a, b) for a, b in zip(weights, w_nof, strict=True))
+    assert all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(weights, w_nol, strict=True))
+    assert any(not np.allclose(a[3:], b[3:]) for a, b in zip(poses, p_nol, strict=True))
+
+
+def test_the_shoe_model_is_relearned_when_the_person_comes_back(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    subject = body_model("mMA").body
+    loaded, cam, room, truth = _scene(small_db, rng, subject)
+    cfg = TrackerConfig(background_frames=6, init_frames=3)
+    st = new_state(loaded.body)
+    for _ in range(6):
+        st, _ = process_frame(st, _frame(room, None, rng), loaded.db, loaded.body, cam, cfg)
+    masks = [render_silhouette(truth[f], subject.capsule_radii, cam) for f in range(0, 16, 2)]
+    for m in masks:
+        st, res = process_frame(st, _shod(room, m, rng, (20, 220, 230)), loaded.db, loaded.body, cam, cfg)
+    assert res.phase == "tracking" and st.shoes is not None and np.allclose(st.shoes.mean, (20, 220, 230), atol=12)
+    for _ in range(3):  # the person leaves
+        st, res = process_frame(st, _frame(room, None, rng), loaded.db, loaded.body, cam, cfg)
+    assert res.phase == "waiting"
+    st, res = process_frame(st, _shod(room, masks[0], rng, (230, 40, 30)), loaded.db, loaded.body, cam, cfg)
+    assert res.phase == "initialising" and st.shoes is None  # the old colour is forgotten
+    for m in masks[1:]:
+        st, res = process_frame(st, _shod(room, m, rng, (230, 40, 30)), loaded.db, loaded.body, cam, cfg)
+    assert res.phase == "tracking" and st.shoes is not None and np.allclose(st.shoes.mean, (230, 40, 30), atol=12)
 
 
 def test_bad_frame_is_rejected(small_db) -> None:  # type: ignore[no-untyped-def]

@@ -82,8 +82,9 @@ def test_the_shoe_pixel_kernel_equals_the_numpy_mask(rng: np.random.Generator) -
         assert len(su) > 0
         cost = feet_cost((su, sv), np.array([[[146.0, 200.0], [172.0, 200.0]]]), p, wmask.shape)
         assert cost is not None
-        np.testing.assert_array_equal(cost, feet_cost(shoe_mask(walk, wmask, model, p),
-                                                      np.array([[[146.0, 200.0], [172.0, 200.0]]]), p))
+        ref = feet_cost_reference(shoe_mask(walk, wmask, model, p), np.array([[[146.0, 200.0], [172.0, 200.0]]]), p)
+        assert ref is not None
+        np.testing.assert_allclose(cost, ref, rtol=1e-12)  # the fast path end to end against the numpy one
     empty = np.zeros_like(mask)
     assert [len(a) for a in shoe_pixels(img, empty, model, p)] == [0, 0]
 
@@ -127,6 +128,7 @@ def test_the_feet_cost_kernel_equals_its_numpy_reference(rng: np.random.Generato
         assert a is not None and b is not None
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9, err_msg=f"case {case}")
     assert feet_cost(np.zeros((h, w), bool), feet, ShoeParams()) is None
+    assert feet_cost(np.zeros((h, w), bool), feet, ShoeParams(min_pixels=0)) is None  # never an empty mean
 
 
 def test_foot_points_move_with_the_placement() -> None:

@@ -50,15 +50,19 @@ def test_tracker_options_build_the_config() -> None:
     cfg = _config(ns(measurements="height=1.83,group=men,leg=1.04"))
     assert cfg.body_candidates == () and cfg.body is not None
     assert cfg.body.height == pytest.approx(1.83)
-    assert _config(ns(measurements="subject")).body is None  # eval resolves it with the scene
+    assert _config(ns(measurements="subject", measurements_subject=True)).body is None  # eval: with the scene
+    for bad in ({"measurements": "subject"}, {"measurements": "subject:leg"},  # run: not the scene's person
+                {"measurements": "subjectively", "measurements_subject": True},
+                {"measurements": "subject:inseam", "measurements_subject": True}):
+        with pytest.raises(ValueError):
+            _config(ns(**bad))
     with pytest.raises(ValueError, match="not both"):
         _config(ns(measurements="height=1.7", body="mMA"))
     with pytest.raises(ValueError, match="leg"):
         _config(ns(measurements="height=1.7,leg=2"))
     from tracker_service.tracker_cli import _subject_keys
 
-    assert _subject_keys(None) == () and _subject_keys("height=1.7") == ()
+    assert _subject_keys(None) == () and _subject_keys("height=1.7") == () and _subject_keys("subjects") == ()
     assert _subject_keys("subject:height,leg") == ("height", "leg") and "arm" in _subject_keys("subject")
-    for bad in ("subject:inseam", "subjects"):
-        with pytest.raises(ValueError):
-            _subject_keys(bad)
+    with pytest.raises(ValueError):
+        _subject_keys("subject:inseam")

@@ -4,9 +4,11 @@ queryable answers, and SIGTERM stops it cleanly. Also ``mocap-tracker eval --jso
 
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -81,19 +83,53 @@ def test_daemon_publishes_sane_poses(small_db) -> None:  # type: ignore[no-untyp
     assert statuses and statuses[-1].state.value in ("tracking", "stopped")
 
 
-def test_daemon_stops_on_sigterm(small_db) -> None:  # type: ignore[no-untyped-def]
+def _stderr_lines(proc: subprocess.Popen[bytes]) -> "queue.Queue[str]":
+    lines: queue.Queue[str] = queue.Queue()
+
+    def pump() -> None:
+        assert proc.stderr is not None
+        for raw in proc.stderr:
+            lines.put(raw.decode(errors="replace"))
+
+    threading.Thread(target=pump, daemon=True).start()
+    return lines
+
+
+@pytest.mark.parametrize("when", ["start-up", "tracking"])
+def test_daemon_stops_on_sigterm(small_db, when: str) -> None:  # type: ignore[no-untyped-def]
+    """SIGTERM ends the daemon promptly with exit code 0, during its start-up (database, EGL,
+    warm-up: no Zenoh session yet) or once it publishes (the loop checks the stop per frame)."""
     path = small_db[4]
     cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{SCRIPT}", "--db", str(path),
-           "--body", "mMA", "--listen", free_tcp_endpoint(), "-q"]
+           "--body", "mMA", "--listen", free_tcp_endpoint()]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    lines = _stderr_lines(proc)
     try:
-        time.sleep(4.0)
+        if when == "tracking":  # wait until it has opened its session and announced itself
+            deadline = time.monotonic() + 180.0
+            while time.monotonic() < deadline:
+                try:
+                    if "publishing poses" in lines.get(timeout=0.5):
+                        break
+                except queue.Empty:
+                    assert proc.poll() is None, "the daemon exited before publishing"
+            else:
+                pytest.fail("the daemon did not start publishing")
+            time.sleep(0.5)
+        else:
+            time.sleep(1.0)
         assert proc.poll() is None
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=5)
-        assert time.monotonic() - t0 < 2.0
+        proc.wait(timeout=10)
+        assert time.monotonic() - t0 < 3.0
         assert proc.returncode == 0
+        if when == "tracking":  # the clean path: the loop ended and the counters were logged
+            time.sleep(0.2)
+            rest = []
+            while not lines.empty():
+                rest.append(lines.get())
+            assert any("tracker stopped" in line for line in rest), rest[-5:]
     finally:
         if proc.poll() is None:
             proc.kill()

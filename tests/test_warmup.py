@@ -39,3 +39,30 @@ def test_a_stop_request_ends_the_warm_up(small_db) -> None:  # type: ignore[no-u
 
     out = warm_up(loaded.db, loaded.body, loaded.camera, cfg, should_stop=stop)
     assert out.frames == 3 and out.phase == "learning"
+
+
+def test_a_daemon_stopped_while_warming_up_opens_no_session(small_db, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import threading
+
+    from tracker_service import tracker_app
+
+    loaded = load_db(small_db[4], verify=False)
+
+    class Source:
+        closed = False
+
+        def __iter__(self):  # type: ignore[no-untyped-def]
+            raise AssertionError("no frame is read after a stop during the warm-up")
+
+        def close(self) -> None:
+            Source.closed = True
+
+    def no_session(*a, **kw):  # type: ignore[no-untyped-def]
+        raise AssertionError("the session opened after a stop during the warm-up")
+
+    monkeypatch.setattr(tracker_app, "open_session", no_session)
+    stop = threading.Event()
+    stop.set()
+    cfg = TrackerConfig(distance="xor", background_frames=4, init_frames=2)
+    out = tracker_app.run_tracker(Source(), loaded, cfg, None, tracker_app.RunOptions(), stop)  # type: ignore[arg-type]
+    assert out["frames_in"] == 0 and Source.closed

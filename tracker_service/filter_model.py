@@ -180,7 +180,10 @@ class FilterParams:
         cheapest leaf) in the leaf level's negative log likelihood (``step(..., shoe_cost=)``);
         0: the cue only re-weights the published legs. 0.02: over the 51 held-out takes, root
         error -0.14 / -0.15 / -0.49 cm on three subjects, MPJPE -0.02 cm on average (0.05 was
-        worse; docs/TRACKER.md, session 14).
+        worse; docs/TRACKER.md, session 14). The published legs' re-weighting
+        (``ShoeParams.weight``) multiplies the support's tempered posterior, which already holds
+        this term (``exp(-shoe_weight * cost / T)``): the two were tuned together. The term is
+        scored at each leaf's placement before the refinement and held over the refinement grid.
     """
 
     sigma: tuple[float, ...] = (0.01, 0.01, 0.01)
@@ -281,7 +284,7 @@ class Estimate:
         ``FilterState.leaves`` (which is empty after a re-initialisation).
     support_cost : (K,) float64
         Each support leaf's cost at that placement: eq. 6's negative log likelihood plus the
-        placement prior and the skin cue.
+        placement prior, the skin cue and the shoe cue (``FilterParams.shoe_weight``).
     support_leaves : (K,) int64
         The support leaves themselves (``FilterState.leaves`` before any re-initialisation).
     support_weights : (K,) float64

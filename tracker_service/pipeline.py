@@ -181,6 +181,21 @@ def new_state(body: Body, background: BackgroundModel | None = None) -> TrackerS
                         learning=(), filter=initial_state(), body=body, body_scale=1.0, body_scores={})
 
 
+_FEET = np.array([JOINT_INDEX[n] for n in ("l_ankle", "l_toe", "r_ankle", "r_toe")])
+
+
+def _feet_offset(pose: NDArray[np.float64], body: Body, db_body: Body, scale: float) -> float:
+    """How far to raise the root so that ``body``'s lowest foot joint is where the templates' body
+    scaled by ``scale`` puts it (metres). Zero for a body of the family's proportions; a body with
+    longer or shorter legs (given measurements, a child) would otherwise hang its feet through the
+    floor or float above it, since the root is placed from the template's."""
+    if body is db_body and scale == 1.0:
+        return 0.0
+    rel = pose.copy()
+    rel[:3] = 0.0
+    return float(scale * fk(rel, db_body)[_FEET, 1].min() - fk(rel, body)[_FEET, 1].min())
+
+
 def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
     xs = np.nonzero(mask)[1]
     return bool(len(xs)) and abs(float(xs.mean()) - mask.shape[1] / 2) <= radius * mask.shape[1]
@@ -250,7 +265,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     skin = observe_skin(frame, mask, config.skin) if config.skin is not None else None
     shoe_px = None
     leaf_shoe_cost = None
-    if state.phase == "tracking" and state.shoes is not None and config.shoes is not None and len(db.leaf_points):
+    feet_seen = feet_in_view(mask)  # shoes are learned, and looked for, only with the feet in the image
+    if (state.phase == "tracking" and state.shoes is not None and config.shoes is not None and len(db.leaf_points)
+            and feet_seen):
         shoe_px = shoe_pixels(frame, mask, state.shoes, config.shoes)
         shoe_params = config.shoes
 
@@ -267,7 +284,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     scores = state.body_scores
     statures = state.statures
     shoe_samples, shoes = state.shoe_samples, state.shoes
-    if phase == "initialising" and config.shoes is not None and feet_in_view(mask):
+    if phase == "initialising" and config.shoes is not None and feet_seen:
         shoe_samples = (*shoe_samples, band_pixels(frame, mask, config.shoes))
     body, scale = state.body, state.body_scale
     if phase == "initialising" and config.body_candidates and raw is not None:
@@ -295,7 +312,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             shoes = learn_shoes(np.concatenate([a for a, _ in shoe_samples]),
                                 np.concatenate([b for _, b in shoe_samples]), config.shoes)
         shoe_samples = ()
-    if shoe_px is None and phase == "tracking" and shoes is not None and config.shoes is not None:
+    if shoe_px is None and phase == "tracking" and shoes is not None and config.shoes is not None and feet_seen:
         shoe_px = shoe_pixels(frame, mask, shoes, config.shoes)  # the frame that learned them
     if (shoe_px is not None and config.shoes is not None and config.use_mean_pose and len(est.support_leaves)
             and config.shoes.weight > 0 and len(db.leaf_points)):
@@ -311,6 +328,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             # s_feet is the floor-row ratio (the templates' size); the subject is `scale` times it
             place = scaled_placement(np.array([place[0], 0.0, s_feet]), scale, camera)
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)
+    pose[1] += _feet_offset(pose, body, db_body, scale)
     smooth = state.smooth
     if config.smoothing is not None and phase == "tracking" and not est.reinitialised and not body_changed:
         smooth, pose = smooth_pose(smooth, clock, pose, config.smoothing)

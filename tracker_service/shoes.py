@@ -231,7 +231,7 @@ def feet_cost(shoes: NDArray[np.bool_] | tuple[NDArray[np.int64], NDArray[np.int
     else:
         sv, su = np.nonzero(shoes)
         shape = shoes.shape
-    if len(sv) < params.min_pixels:
+    if len(sv) < max(params.min_pixels, 1):
         return None
     out: NDArray[np.float64] = feet_cost_kernel(su.astype(np.int64), sv.astype(np.int64),
                                                 np.ascontiguousarray(feet, np.float64), shape[0],
@@ -245,7 +245,7 @@ def feet_cost_reference(shoes: NDArray[np.bool_], feet: NDArray[np.float64], par
     """Plain numpy :func:`feet_cost`: the forward term from a distance transform of the shoes'
     box, the reverse term from every pixel-to-foot distance."""
     sv, su = np.nonzero(shoes)
-    if len(sv) < params.min_pixels:
+    if len(sv) < max(params.min_pixels, 1):
         return None
     # the distance transform of a box around the shoes, grown by the cap: farther feet are capped
     pad = int(np.ceil(params.cap_px)) + 1

@@ -95,6 +95,10 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
                 options: RunOptions, stop: threading.Event) -> dict[str, int]:
     """Track frames from ``source`` and publish until the source ends, a limit or ``stop``.
 
+    With ``options.warm_up`` the pipeline first runs on a generated clip
+    (:func:`~tracker_service.warmup.warm_up`) before the Zenoh session opens, so a stop during
+    start-up leaves no entity declared and the first real frame compiles nothing.
+
     Returns
     -------
     dict[str, int]
@@ -119,6 +123,13 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             frames=counters.values["published"], counters=dict(counters.values), stage_ms=counters.stage_means(),
             estimator="tree", body_model=state.body.name))
 
+    if options.warm_up:  # compile (first run) or load every kernel before the first real frame
+        log.info("warming up the pipeline (the first run after an install compiles its kernels)")
+        wu = warm_up(loaded.db, loaded.body, loaded.camera, config, should_stop=stop.is_set)
+        log.info("warm-up: %d frames in %.1f s (reached %s)", wu.frames, wu.seconds, wu.phase)
+        if stop.is_set():  # stopped during start-up: no session was opened
+            source.close()
+            return dict(counters.values)
     with open_session(conf) as session:
         entities: list[Any] = []
         try:
@@ -129,12 +140,6 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             entities.append(session.declare_queryable(body_key(tid), on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
             status_pub.put(status(TrackerState.STARTING))
-            if options.warm_up:  # compile (first run) or load every kernel before the first real frame
-                log.info("warming up the pipeline (the first run after an install compiles its kernels)")
-                wu = warm_up(loaded.db, loaded.body, loaded.camera, config, should_stop=stop.is_set)
-                log.info("warm-up: %d frames in %.1f s (reached %s)", wu.frames, wu.seconds, wu.phase)
-                if stop.is_set():
-                    return dict(counters.values)
             log.info("publishing poses of tracker %r on %s (database %s, %d templates)", tid, pose_key(tid),
                      loaded.body.name, loaded.db.n_leaves)
             if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):

@@ -81,6 +81,7 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                             "shoulder=M (joint spacing), arm=RATIO, leg=RATIO (1.0 = the family's proportions)"
                             + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
                                if p.prog.endswith("eval") else ""))
+        p.set_defaults(measurements_subject=p.prog.endswith("eval"))
         p.add_argument("--estimator", choices=["tree"], default="tree", help="pose estimator (default: tree)")
         p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
                        help="silhouette distance (default: xor, the most accurate in our measurements; the "
@@ -225,7 +226,12 @@ def _config(args: argparse.Namespace) -> Any:
         if args.body != "auto":
             raise ValueError("give either --body NAME or --measurements, not both")
         cands = ()
-        if not args.measurements.startswith("subject"):  # eval's 'subject' is resolved with the scene
+        if _is_subject(args.measurements):  # eval's 'subject' is resolved with the scene
+            if not getattr(args, "measurements_subject", False):
+                raise ValueError("--measurements subject is eval's (the synthetic person's own measurements); "
+                                 "give the user's as height=M,leg=RATIO,...")
+            _subject_keys(args.measurements)  # a bad key is an error now, not after the warm-up
+        else:
             given = given_body(parse_measurements(args.measurements))
     if args.max_heading is not None and not 0.0 < args.max_heading <= 180.0:
         raise ValueError(f"--max-heading must be in (0, 180] degrees, got {args.max_heading}")
@@ -275,7 +281,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             if stop.wait(0.05):
                 worker.join(timeout=1.0)
                 break
-    if worker.is_alive():  # still starting up (loading, EGL): nothing to clean up yet, leave now
+    if worker.is_alive():  # still starting up (loading, EGL, warm-up): no Zenoh session yet, leave now
         log.info("stopped during start-up")
         logging.shutdown()
         sys.stdout.flush()
@@ -285,10 +291,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return int(outcome.get("rc", 0))
 
 
+def _is_subject(spec: str | None) -> bool:
+    """Whether ``--measurements`` names the synthetic person's own (``subject`` or ``subject:KEYS``)."""
+    return bool(spec) and (spec == "subject" or str(spec).startswith("subject:"))
+
+
 def _subject_keys(spec: str | None) -> tuple[str, ...]:
     """``subject`` -> every measurement of the scene's person; ``subject:height,leg`` -> those."""
-    if not spec or not spec.startswith("subject"):
+    if not _is_subject(spec):
         return ()
+    assert spec is not None
     head, _, keys = spec.partition(":")
     if head != "subject":
         raise ValueError(f"--measurements {spec!r}: write subject or subject:KEY,...")

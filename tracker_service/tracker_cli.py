@@ -254,15 +254,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from protocol.session import stop_on_signals
 
-    from .sources import open_source, parse_source
-    from .tracker_app import run_tracker_cli
-
-    spec = parse_source(args.source)
-    config = _config(args)
     outcome: dict[str, Any] = {}
 
     def work(stop: threading.Event) -> None:
         try:
+            # imported here, under the signal handlers: numba and cv2 take a while to import
+            from .sources import open_source, parse_source
+            from .tracker_app import run_tracker_cli
+
+            spec = parse_source(args.source)
+            config = _config(args)
             loaded = ensure_db(args.db)
             if stop.is_set():
                 return

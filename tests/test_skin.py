@@ -180,3 +180,24 @@ def test_skin_cost_kernel_matches_the_numpy_references() -> None:
         obs.samples, pts, places, center, 6.0, 4.0, 16.0)
     got = skin_cost(obs, pts, vis, places, center, 4.0, 16.0, 1.0, 0.7, 6.0)
     np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6)  # float32 joints
+
+
+def test_distance_transform_is_reproducible_and_exact() -> None:
+    """OpenCV 5's distance transform changed in the last bit with its output buffer's address (a
+    60x80 image alternated between two results); ``distance_transform`` gives one answer, the
+    exact Euclidean distance."""
+    from scipy import ndimage
+
+    from tracker_service.features import distance_transform
+
+    rng = np.random.default_rng(0)
+    for shape in ((150, 120), (60, 80), (61, 83)):
+        src = np.ones(shape, np.uint8)
+        src[rng.integers(0, shape[0], 30), rng.integers(0, shape[1], 30)] = 0
+        first = distance_transform(src)
+        for k in range(12):
+            pad = np.empty(k * 5 + 1, np.float32)  # shift the allocator between calls
+            np.testing.assert_array_equal(distance_transform(src), first)
+            del pad
+        assert first.dtype == np.float32 and first.shape == shape
+        np.testing.assert_allclose(first, ndimage.distance_transform_edt(src), atol=1e-4)

@@ -34,6 +34,7 @@ from protocol.skeleton import JOINT_INDEX, PARTS, Body
 
 from ._kernels import skin_cost_kernel
 from .camera import Camera
+from .features import distance_transform
 
 __all__ = [
     "HAND_PARTS",
@@ -180,7 +181,7 @@ def observe_skin(image: NDArray[np.uint8], silhouette: NDArray[np.bool_], model:
     dist = np.full(mask.shape, 1e3, np.float32)
     if mask.any():
         ys, xs = _bbox(mask, reach_px)
-        dist[ys, xs] = cv2.distanceTransform((~mask[ys, xs]).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        dist[ys, xs] = distance_transform((~mask[ys, xs]).astype(np.uint8))
     idx = np.flatnonzero(mask)
     if len(idx) > max_samples:
         idx = idx[np.linspace(0, len(idx) - 1, max_samples).astype(np.int64)]

@@ -15,8 +15,8 @@ from numpy.typing import NDArray
 
 __all__ = ["ALL_CAPSULES", "BROAD_SLACK", "CARRY_JUMP", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
            "PINCH_DEPTH", "RELAX_RATE", "RELAX_STEPS", "broad_phase", "capsule_geometry",
-           "clear_limbs", "collide", "covered", "inline_kernel", "jit_kernel", "penetration", "pinch_margin",
-           "round_cone", "round_cone_geo"]
+           "clear_limbs", "collide", "covered", "inline_kernel", "jit_kernel", "limb_overlap", "penetration",
+           "pinch_margin", "push_out", "round_cone", "round_cone_geo"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -453,6 +453,73 @@ def covered(points: F64, a: F64, b: F64, radii: F64, reach: F64, out: NDArray[np
                     break
                 d = round_cone_geo(points[k, p, 0], points[k, p, 1], points[k, p, 2], geo, c)[0]
                 out[p] = d < reach[c]
+
+
+@_jit
+def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDArray[np.int64], s: F64,
+                 out: F64) -> None:  # pragma: no cover
+    """``out[l]``: largest ``r_limb(s) - min_t d_t(s)`` over the axis samples ``s`` of limb capsule
+    ``limbs[l]`` and the trunk capsules ``trunk`` (reference:
+    ``limb_clearance.limb_overlap(..., backend="numpy")``).
+
+    Parameters
+    ----------
+    a, b : (C, 3) float64
+    radii : (C, 2) float64
+    limbs : (L,) int64
+    trunk : (T,) int64
+    s : (S,) float64
+        Axis fractions.
+    out : (L,) float64
+    """
+    geo = np.empty((a.shape[0], _GEO_COLS))
+    capsule_geometry(a, b, radii, 0.0, geo)
+    for li in range(limbs.shape[0]):
+        c = limbs[li]
+        worst = -np.inf
+        for k in range(s.shape[0]):
+            u = s[k]
+            px = a[c, 0] + u * (b[c, 0] - a[c, 0])
+            py = a[c, 1] + u * (b[c, 1] - a[c, 1])
+            pz = a[c, 2] + u * (b[c, 2] - a[c, 2])
+            d_min = np.inf
+            for ti in range(trunk.shape[0]):
+                d_min = min(d_min, round_cone_geo(px, py, pz, geo, trunk[ti])[0])
+            worst = max(worst, (1.0 - u) * radii[c, 0] + u * radii[c, 1] - d_min)
+        out[li] = worst
+
+
+@_jit
+def push_out(points: F64, a: F64, b: F64, radii: F64, clearance: float, passes: int) -> None:  # pragma: no cover
+    """Move ``points`` in place to at least ``clearance`` metres outside the body at their key:
+    ``passes`` projections along the normal of the nearest capsule (the one of least signed
+    distance; the first on a tie). Reference: ``AvatarKeys.push_out(..., backend="numpy")``.
+
+    Parameters
+    ----------
+    points : (K + 1, P, 3) float64
+        Modified in place.
+    a, b : (K + 1, C, 3) float64
+    radii : (C, 2) float64
+    clearance : float
+    passes : int
+    """
+    geo = np.empty((a.shape[1], _GEO_COLS))
+    for k in range(points.shape[0]):
+        capsule_geometry(a[k], b[k], radii, 0.0, geo)
+        for p in range(points.shape[1]):
+            for _ in range(passes):
+                px, py, pz = points[k, p, 0], points[k, p, 1], points[k, p, 2]
+                best, bx, by, bz = np.inf, 0.0, 0.0, 0.0
+                for c in range(a.shape[1]):
+                    d, nx, ny, nz, _t = round_cone_geo(px, py, pz, geo, c)
+                    if d < best:
+                        best, bx, by, bz = d, nx, ny, nz
+                depth = clearance - best
+                if depth > 0.0:
+                    points[k, p, 0] = px + depth * bx
+                    points[k, p, 1] = py + depth * by
+                    points[k, p, 2] = pz + depth * bz
 
 
 @_inline

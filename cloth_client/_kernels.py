@@ -59,6 +59,7 @@ __all__ = [
     "collide",
     "drag_forces",
     "integrate",
+    "interpolate_poses",
     "line_limit",
     "long_range_attach",
     "penetration",
@@ -68,6 +69,7 @@ __all__ = [
     "round_cone_geo",
     "simulate_substeps",
     "spring_forces",
+    "spring_strain",
     "strain_limit",
 ]
 
@@ -554,3 +556,58 @@ def simulate_substeps(
             if sp > max_speed and inv_mass[i] > 0.0:
                 for d in range(3):
                     v[i, d] *= max_speed / sp
+
+
+@_inline
+def _rotvec_quat(p: F64, i: int) -> tuple[float, float, float, float]:  # pragma: no cover
+    """Unit quaternion ``(w, x, y, z)``, ``w >= 0``, of the rotation vector ``p[i:i + 3]``."""
+    rx, ry, rz = p[i], p[i + 1], p[i + 2]
+    theta = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if theta < 1e-8:
+        w, x, y, z = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        return w / n, x / n, y / n, z / n
+    c, f = math.cos(0.5 * theta), math.sin(0.5 * theta) / theta
+    if c < 0.0:
+        c, f = -c, -f
+    return c, f * rx, f * ry, f * rz
+
+
+@_jit
+def interpolate_poses(p0: F64, p1: F64, s: F64, out: F64) -> None:  # pragma: no cover
+    """Articulated interpolation between poses ``p0`` and ``p1`` ``(P,)`` at fractions ``s (K,)``
+    into ``out (K, P)``: the root position linearly, every rotation slerped along the shorter arc
+    (reference: ``avatar.interpolate_poses(..., backend="numpy")``)."""
+    for k in range(s.shape[0]):
+        t = s[k]
+        for d in range(3):
+            out[k, d] = (1.0 - t) * p0[d] + t * p1[d]
+    for i in range(3, p0.shape[0], 3):
+        aw, ax, ay, az = _rotvec_quat(p0, i)
+        bw, bx, by, bz = _rotvec_quat(p1, i)
+        dot = aw * bw + ax * bx + ay * by + az * bz
+        if dot < 0.0:
+            bw, bx, by, bz, dot = -bw, -bx, -by, -bz, -dot
+        theta = math.acos(min(dot, 1.0))
+        st = math.sin(theta)
+        for k in range(s.shape[0]):
+            t = s[k]
+            if st < 1e-6:
+                w0, w1 = 1.0 - t, t
+            else:
+                w0, w1 = math.sin((1.0 - t) * theta) / st, math.sin(t * theta) / st
+            qw, qx, qy, qz = w0 * aw + w1 * bw, w0 * ax + w1 * bx, w0 * ay + w1 * by, w0 * az + w1 * bz
+            qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            qw, qx, qy, qz = qw / qn, qx / qn, qy / qn, qz / qn
+            sn = math.sqrt(qx * qx + qy * qy + qz * qz)
+            scale = 2.0 if sn < 1e-12 else 2.0 * math.atan2(sn, qw) / sn
+            out[k, i], out[k, i + 1], out[k, i + 2] = scale * qx, scale * qy, scale * qz
+
+
+@_jit
+def spring_strain(x: F64, springs: I64, rest: F64, out: F64) -> None:  # pragma: no cover
+    """``out[s]`` = engineering strain ``(l - L) / L`` of spring ``s`` (reference:
+    ``cloth.structural_strain(..., backend="numpy")``)."""
+    for s in range(springs.shape[0]):
+        _i, _j, d0, d1, d2 = _spring_vector(x, springs, s)
+        out[s] = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) / rest[s] - 1.0

@@ -23,6 +23,8 @@ from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 
 from ._contact_kernels import covered as covered_kernel
+from ._contact_kernels import push_out as push_out_kernel
+from ._kernels import interpolate_poses as interpolate_kernel
 from .collision import CapsuleTrack, round_cone_np
 from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, clear_limbs_track, limb_overlap
 
@@ -75,7 +77,7 @@ def _rotvec_from_quat(q: F64) -> F64:
     return out
 
 
-def interpolate_poses(p0: F64, p1: F64, s: F64) -> F64:
+def interpolate_poses(p0: F64, p1: F64, s: F64, backend: str = "numba") -> F64:
     """Articulated interpolation between two poses.
 
     Parameters
@@ -89,8 +91,17 @@ def interpolate_poses(p0: F64, p1: F64, s: F64) -> F64:
     -------
     (K, P) float64
         Root position linear, root and joint rotations slerped along the shorter arc.
+        ``backend="numpy"`` runs the plain reference of the kernel (rotation vectors through
+        matrices and :func:`protocol.rotations.quat_slerp`).
     """
     s = np.asarray(s, dtype=np.float64)
+    if backend not in ("numba", "numpy"):
+        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    if backend == "numba":
+        res = np.empty((len(s), POSE_SIZE))
+        interpolate_kernel(np.ascontiguousarray(p0, dtype=np.float64), np.ascontiguousarray(p1, dtype=np.float64),
+                           np.ascontiguousarray(s), res)
+        return res
     q0 = matrix_to_quat(rotvec_to_matrix(p0[3:].reshape(-1, 3)))  # (R, 4)
     q1 = matrix_to_quat(rotvec_to_matrix(p1[3:].reshape(-1, 3)))
     q = quat_slerp(q0[None], q1[None], np.broadcast_to(s[:, None], (len(s), len(q0))))
@@ -157,9 +168,17 @@ class AvatarKeys:
         out: F64 = origin + offset
         return out
 
-    def push_out(self, points: F64, clearance: float) -> F64:
+    def push_out(self, points: F64, clearance: float, backend: str = "numba") -> F64:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
-        (two projection passes over the nearest capsule)."""
+        (two projection passes over the nearest capsule); ``backend="numpy"`` runs the plain
+        reference of the kernel."""
+        if backend not in ("numba", "numpy"):
+            raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+        if backend == "numba":
+            moved = np.array(points, dtype=np.float64, order="C")
+            push_out_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
+                            np.ascontiguousarray(self.track.radii), float(clearance), 2)
+            return moved
         out = points.copy()
         radii = self.track.radii
         for k in range(len(out)):
@@ -248,7 +267,8 @@ class Continuity:
     max_gap_s: float = 0.5
 
 
-def is_discontinuity(body: Body, p0: F64, p1: F64, dt: float, limits: Continuity | None = None) -> bool:
+def is_discontinuity(body: Body, p0: F64, p1: F64, dt: float, limits: Continuity | None = None,
+                     joints: tuple[F64, F64] | None = None) -> bool:
     """True if going from pose ``p0`` to ``p1`` in ``dt`` seconds is not a plausible human motion.
 
     Parameters
@@ -258,14 +278,19 @@ def is_discontinuity(body: Body, p0: F64, p1: F64, dt: float, limits: Continuity
     dt : float
         Time between the two poses, seconds (<= 0 counts as a discontinuity).
     limits : Continuity, optional
+    joints : ((J, 3), (J, 3)) float64, optional
+        The two poses' joint positions when the caller has them (default: computed here).
     """
     lim = limits or Continuity()
     if not dt > 0 or dt > lim.max_gap_s:
         return True
     if np.linalg.norm(p1[:3] - p0[:3]) > lim.max_root_speed * dt:
         return True
-    j0, _ = fk_global(p0, body)
-    j1, _ = fk_global(p1, body)
+    if joints is None:
+        j, _ = fk_global(np.stack([p0, p1]), body)  # one batched FK for both poses
+        j0, j1 = j[0], j[1]
+    else:
+        j0, j1 = joints
     return bool(np.linalg.norm(j1 - j0, axis=-1).max() > lim.max_joint_speed * dt)
 
 

@@ -391,9 +391,17 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
 
 # --- diagnostics ---------------------------------------------------------------------------------------
 
-def structural_strain(model: ClothModel, x: F64) -> F64:
-    """Engineering strain ``(l - L) / L`` of every structural spring, ``(S_structural,)``."""
+def structural_strain(model: ClothModel, x: F64, backend: str = "numba") -> F64:
+    """Engineering strain ``(l - L) / L`` of every structural spring, ``(S_structural,)``
+    (``backend="numpy"``: the plain reference of the kernel)."""
     g = model.garment
+    if backend not in ("numba", "numpy"):
+        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    if backend == "numba":
+        res = np.empty(len(g.structural))
+        K.spring_strain(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(g.structural, dtype=np.int64),
+                        np.ascontiguousarray(g.structural_rest, dtype=np.float64), res)
+        return res
     out: F64 = np.linalg.norm(x[g.structural[:, 1]] - x[g.structural[:, 0]], axis=1) / g.structural_rest - 1.0
     return out
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from protocol.kinematics import fk
 from protocol.skeleton import Body
 
 from . import _kernels as K
@@ -171,6 +172,7 @@ class ClothDriver:
         self._overlap: F64 | None = None
         self._limb_memory: F64 | None = None  # sunk-limb corrections carried from step to step
         self._tethers: dict[bytes, tuple[NDArray[np.int64], F64]] = {}
+        self._joints: tuple[F64, F64] | None = None  # (self.pose, its joint positions)
 
     # -- public ---------------------------------------------------------------------------------------
     def feed(self, pose: F64, t: float) -> FrameStats | None:
@@ -197,7 +199,9 @@ class ClothDriver:
             self.stats.skipped += 1
             return None
         before = self.state.substeps
-        reset = is_discontinuity(self.body, self.pose, pose, dt, self.config.continuity)
+        j1 = fk(pose, self.body)
+        j0 = self._joints[1] if self._joints is not None and self._joints[0] is self.pose else fk(self.pose, self.body)
+        reset = is_discontinuity(self.body, self.pose, pose, dt, self.config.continuity, joints=(j0, j1))
         if reset:
             self._reset(pose, t)
         else:
@@ -209,6 +213,7 @@ class ClothDriver:
             self.dress(pose, t)
         self.state.t = t
         self.pose = pose
+        self._joints = (pose, j1)  # the next frame's discontinuity test starts from these joints
         self.stats.sim_time += dt
         return self._measure(pose, t, self.state.substeps - before, reset)
 

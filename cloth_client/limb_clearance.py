@@ -55,7 +55,7 @@ MAX_PUSH = 0.17
 
 
 def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
-                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9) -> F64:
+                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9, backend: str = "numba") -> F64:
     """How deep each limb capsule's surface sinks into the trunk capsules in one pose.
 
     Parameters
@@ -75,7 +75,17 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
         Largest ``r_limb(s) - d_trunk(s)`` over the axis samples ``s`` and the trunk capsules,
         metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0 when the
         two surfaces overlap by that much, e.g. a forearm swung through the hips.
+
+    ``backend="numpy"`` runs the plain reference of the kernel.
     """
+    if backend not in ("numba", "numpy"):
+        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    if backend == "numba":
+        res = np.empty(len(limbs))
+        K.limb_overlap(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
+                       np.ascontiguousarray(radii, dtype=np.float64), np.ascontiguousarray(limbs, dtype=np.int64),
+                       np.ascontiguousarray(trunk, dtype=np.int64), np.linspace(0.0, 1.0, samples), res)
+        return res
     depth, _ = _axis_depth(a[None], b[None], radii, limbs, trunk, np.linspace(0.0, 1.0, samples))
     out: F64 = depth[0].max(axis=1)
     return out

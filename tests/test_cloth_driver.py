@@ -27,6 +27,7 @@ from protocol.rotations import rotvec_to_matrix
 from protocol.skeleton import (
     CAPSULE_INDEX,
     JOINT_INDEX,
+    POSE_SIZE,
     ROT_JOINTS,
     body_from_measurements,
     default_body,
@@ -348,3 +349,19 @@ def test_limb_overlap_of_a_forearm_swung_through_the_hips() -> None:
     depth = limb_overlap(*capsule_endpoints(BODY, _dance(np.array([0.6]))[0]), radii)  # through the pelvis
     i = list(LIMBS).index(CAPSULE_INDEX["l_forearm"])
     assert depth[i] > 0.10 and depth[list(LIMBS).index(CAPSULE_INDEX["r_forearm"])] < 0.0
+
+
+def test_interpolation_kernel_matches_numpy() -> None:
+    """The numba slerp of every joint equals the numpy reference (rotation vectors through
+    matrices and quat_slerp), for small steps and turns of more than half a revolution."""
+    rng = np.random.default_rng(8)
+    s = np.linspace(0.0, 1.0, 6)
+    for k in range(40):
+        p0 = rng.normal(0.0, 1.2, POSE_SIZE)
+        p1 = p0 + rng.normal(0.0, 0.05 if k % 2 else 2.0, POSE_SIZE)
+        if k % 5 == 0:
+            p1[3:12] = p0[3:12]  # unchanged joints: the linear branch
+        np.testing.assert_allclose(interpolate_poses(p0, p1, s), interpolate_poses(p0, p1, s, backend="numpy"),
+                                   atol=1e-12, rtol=0)
+    with pytest.raises(ValueError, match="backend"):
+        interpolate_poses(p0, p1, s, backend="cuda")

@@ -220,3 +220,21 @@ def test_a_carried_correction_lets_go_once_the_recorded_arm_is_clear() -> None:
     moved = np.abs(bc[:, chain] - b[:, chain]).max(axis=(1, 2))
     assert moved.max() > 0.05  # corrected during the swing
     np.testing.assert_array_equal(bc[-int(rate // 2):], b[-int(rate // 2):])  # as recorded once clear
+
+
+def test_limb_overlap_kernel_matches_numpy() -> None:
+    """The numba overlap of the limbs with the trunk equals the numpy reference, for limbs clear
+    of the trunk and swung through it."""
+    rng = np.random.default_rng(4)
+    pose = standing_pose(BODY)
+    depths = []
+    for _ in range(60):
+        p = pose + rng.normal(0.0, 0.7, pose.shape)
+        p[:3] = pose[:3]
+        a, b = capsule_endpoints(BODY, p)
+        got, ref = limb_overlap(a, b, R), limb_overlap(a, b, R, backend="numpy")
+        np.testing.assert_allclose(got, ref, atol=1e-12, rtol=0)
+        depths.append(ref)
+    assert (np.array(depths) > 0).any() and (np.array(depths) < 0).any()
+    with pytest.raises(ValueError, match="backend"):
+        limb_overlap(a, b, R, backend="cuda")

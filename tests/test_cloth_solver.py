@@ -360,3 +360,13 @@ def test_bad_inputs_are_rejected() -> None:
         build_model(g, ClothParams(extra_above=0.01))
     with pytest.raises(ValueError, match="extra_rounds"):
         build_model(g, ClothParams(extra_rounds=-1))
+
+
+def test_strain_kernel_matches_numpy(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    """The numba strain of the structural springs equals the numpy reference on a crumpled cloth."""
+    x = model.garment.rest + rng.normal(0.0, 0.01, model.garment.rest.shape)
+    got, ref = structural_strain(model, x), structural_strain(model, x, backend="numpy")
+    np.testing.assert_allclose(got, ref, atol=1e-12, rtol=0)
+    assert ref.min() < 0.0 < ref.max()
+    with pytest.raises(ValueError, match="backend"):
+        structural_strain(model, x, backend="cuda")

@@ -384,15 +384,20 @@ def test_particle_pushed_through_a_thin_capsule_goes_back_to_its_side(backend: s
     np.testing.assert_allclose(x[0], [0.15, -0.03 - margin, 0.0], atol=1e-12)
 
 
-def test_covered_kernel_matches_numpy() -> None:
+def _bent_keys_and_points(seed: int, n: int):  # type: ignore[no-untyped-def]
+    """Three keys (standing, left elbow bent, standing) and ``(3, n, 3)`` random points round the body."""
     body = default_body()
     pose = standing_pose(body)
     bent = pose.copy()
     elbow = 3 + 3 * ROT_JOINTS.index("l_elbow")
     bent[elbow:elbow + 3] = [0.0, 0.0, 1.2]
     keys = pose_keys(body, np.stack([pose, bent, pose]))
-    rng = np.random.default_rng(2)
-    pts = rng.uniform([-0.4, 0.6, -0.3], [0.4, 1.5, 0.3], size=(3, 500, 3))
+    pts = np.random.default_rng(seed).uniform([-0.4, 0.6, -0.3], [0.4, 1.5, 0.3], size=(3, n, 3))
+    return body, keys, pts
+
+
+def test_covered_kernel_matches_numpy() -> None:
+    body, keys, pts = _bent_keys_and_points(2, 500)
     reach = np.full(len(body.capsule_radii), 0.006)
     reach[::3] = 0.04
     for m in (0.006, reach):
@@ -403,14 +408,7 @@ def test_covered_kernel_matches_numpy() -> None:
 
 def test_push_out_kernel_matches_numpy() -> None:
     """The numba push-out of pin targets equals the numpy reference, and its result clears the body."""
-    body = default_body()
-    pose = standing_pose(body)
-    bent = pose.copy()
-    elbow = 3 + 3 * ROT_JOINTS.index("l_elbow")
-    bent[elbow:elbow + 3] = [0.0, 0.0, 1.2]
-    keys = pose_keys(body, np.stack([pose, bent, pose]))
-    rng = np.random.default_rng(5)
-    pts = rng.uniform([-0.4, 0.6, -0.3], [0.4, 1.5, 0.3], size=(3, 400, 3))
+    body, keys, pts = _bent_keys_and_points(5, 400)
     before = pts.copy()
     got, ref = keys.push_out(pts, 0.006), keys.push_out(pts, 0.006, backend="numpy")
     np.testing.assert_array_equal(pts, before)  # the input is not modified

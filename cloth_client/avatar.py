@@ -97,6 +97,8 @@ def interpolate_poses(p0: F64, p1: F64, s: F64, backend: str = "numba") -> F64:
     s = np.asarray(s, dtype=np.float64)
     if backend not in ("numba", "numpy"):
         raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    if np.shape(p0) != (POSE_SIZE,) or np.shape(p1) != (POSE_SIZE,):
+        raise ValueError(f"poses must have shape ({POSE_SIZE},), got {np.shape(p0)} and {np.shape(p1)}")
     if backend == "numba":
         res = np.empty((len(s), POSE_SIZE))
         interpolate_kernel(np.ascontiguousarray(p0, dtype=np.float64), np.ascontiguousarray(p1, dtype=np.float64),
@@ -174,6 +176,8 @@ class AvatarKeys:
         reference of the kernel."""
         if backend not in ("numba", "numpy"):
             raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+        if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
+            raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
         if backend == "numba":
             moved = np.array(points, dtype=np.float64, order="C")
             push_out_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),

@@ -415,6 +415,8 @@ def test_push_out_kernel_matches_numpy() -> None:
     moved = np.linalg.norm(ref - pts, axis=-1) > 1e-9
     assert 40 < moved.sum() < 1100  # many points started inside the body, many outside
     np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
+    with pytest.raises(ValueError, match="shape"):
+        keys.push_out(pts[:2], 0.006)  # a key count other than the track's
     clear = [round_cone_np(got[k], keys.track.a[k], keys.track.b[k], body.capsule_radii[:, 0],
                            body.capsule_radii[:, 1])[0].min(axis=1) >= 0.006 - 1e-9 for k in range(3)]
     assert np.mean(clear) > 0.97  # two passes clear nearly all (a point deep in a joint may need more)

@@ -365,3 +365,5 @@ def test_interpolation_kernel_matches_numpy() -> None:
                                    atol=1e-12, rtol=0)
     with pytest.raises(ValueError, match="backend"):
         interpolate_poses(p0, p1, s, backend="cuda")
+    with pytest.raises(ValueError, match="shape"):
+        interpolate_poses(p0[:-3], p1, s)

@@ -484,8 +484,12 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: ND
             pz = a[c, 2] + u * (b[c, 2] - a[c, 2])
             d_min = np.inf
             for ti in range(trunk.shape[0]):
-                d_min = min(d_min, round_cone_geo(px, py, pz, geo, trunk[ti])[0])
-            worst = max(worst, (1.0 - u) * radii[c, 0] + u * radii[c, 1] - d_min)
+                d = round_cone_geo(px, py, pz, geo, trunk[ti])[0]
+                if d != d or d < d_min:  # a NaN propagates, as in the numpy reference
+                    d_min = d
+            depth = (1.0 - u) * radii[c, 0] + u * radii[c, 1] - d_min
+            if depth != depth or depth > worst:
+                worst = depth
         out[li] = worst
 
 
@@ -513,6 +517,9 @@ def push_out(points: F64, a: F64, b: F64, radii: F64, clearance: float, passes: 
                 best, bx, by, bz = np.inf, 0.0, 0.0, 0.0
                 for c in range(a.shape[1]):
                     d, nx, ny, nz, _t = round_cone_geo(px, py, pz, geo, c)
+                    if d != d:  # a NaN distance wins, as numpy's argmin: the point is not moved
+                        best = d
+                        break
                     if d < best:
                         best, bx, by, bz = d, nx, ny, nz
                 depth = clearance - best

@@ -80,6 +80,8 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
     """
     if backend not in ("numba", "numpy"):
         raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    if samples < 1:
+        raise ValueError(f"samples must be >= 1, got {samples}")
     if backend == "numba":
         res = np.empty(len(limbs))
         K.limb_overlap(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),

@@ -202,3 +202,27 @@ def test_eval_can_give_the_tracker_the_persons_own_measurements(small_db) -> Non
     with pytest.raises(ValueError, match="unknown measurement"):
         evaluate_motion(load_motion(SCRIPT, fps=30.0), loaded, TrackerConfig(distance="xor"),
                         EvalOptions(frames=2, seed=3, empty_prefix=2, subject_measurements=("inseam",)))
+
+
+def test_start_up_sigterm_handler_is_kept_only_for_commands_with_a_clean_stop() -> None:
+    """``_entry``'s start-up handler turns SIGTERM into exit status 0; ``default_sigterm`` (called
+    for build-db and eval) puts the default action back, and leaves any other handler alone."""
+    from tracker_service import _entry
+
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        signal.signal(signal.SIGTERM, _entry._stop_during_import)
+        with pytest.raises(SystemExit) as stop:
+            _entry._stop_during_import(signal.SIGTERM, None)
+        assert stop.value.code == 0
+        _entry.default_sigterm()
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+        def mine(signum: int, frame: object) -> None:
+            pass
+
+        signal.signal(signal.SIGTERM, mine)
+        _entry.default_sigterm()  # a command's (or a test runner's) own handler stays
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, previous)

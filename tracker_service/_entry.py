@@ -3,11 +3,12 @@
 A stop signal that arrives while the interpreter is still importing numpy, numba and zenoh (up to
 a second or two on a loaded machine, before any command has installed its own handlers) must end
 the process as cleanly as one that arrives later: exit status 0, nothing declared yet. This module
-imports only the standard library and, while :mod:`tracker_service.cli` is being imported, turns
-SIGTERM into ``SystemExit(0)``; a Ctrl-C then gives status 130, as it does later before a command
-has installed its handlers. Afterwards SIGTERM's default action is back (a ``build-db`` or
-``eval`` killed half-way must not report success) until a long-running command (``run``,
-``replay``, ``demo``) installs :func:`protocol.session.stop_on_signals` as its first step.
+imports only the standard library and turns SIGTERM into ``SystemExit(0)`` from the start. The
+handler stays for the long-running commands (``run``, ``replay``, ``demo``) until they install
+:func:`protocol.session.stop_on_signals`; for the others (``build-db``, ``eval``) the command
+line puts SIGTERM's default action back once the arguments are parsed
+(:func:`default_sigterm`), since one killed half-way must not report success. A Ctrl-C while
+importing gives status 130, as it does later before a command has installed its handlers.
 """
 
 from __future__ import annotations
@@ -16,15 +17,23 @@ import signal
 import sys
 from types import FrameType
 
-__all__ = ["main"]
+__all__ = ["default_sigterm", "main"]
 
 
 def _stop_during_import(signum: int, _frame: FrameType | None) -> None:
     raise SystemExit(0)
 
 
+def default_sigterm() -> None:
+    """Give SIGTERM its default action back if this module's start-up handler is still installed
+    (called by the command line for the commands that have no clean stop of their own; a no-op
+    when the command line runs in-process, e.g. in tests)."""
+    if signal.getsignal(signal.SIGTERM) is _stop_during_import:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Install the early SIGTERM handler, then run the command line.
+    """Install the start-up SIGTERM handler, then run the command line.
 
     Parameters
     ----------
@@ -35,16 +44,14 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit status of :func:`tracker_service.cli.main`; 130 after a Ctrl-C while importing
-        (a SIGTERM then exits with status 0 by ``SystemExit``).
+        (a SIGTERM before a command's own handlers exits with status 0 by ``SystemExit``).
     """
-    previous = signal.signal(signal.SIGTERM, _stop_during_import)
+    signal.signal(signal.SIGTERM, _stop_during_import)
     try:
         from .cli import main as cli_main
     except KeyboardInterrupt:  # Ctrl-C while importing
         print("mocap-tracker: interrupted", file=sys.stderr)
         return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     return cli_main(argv)
 
 

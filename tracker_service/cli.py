@@ -47,9 +47,14 @@ from protocol.session import (
 )
 from protocol.skeleton import JOINT_INDEX
 
+from ._entry import default_sigterm
+
 __all__ = ["build_parser", "main"]
 
 PROG = "mocap-tracker"
+#: Commands that install :func:`protocol.session.stop_on_signals` and exit 0 on SIGTERM; until they
+#: do, :mod:`tracker_service._entry`'s start-up handler gives the same clean exit.
+_CLEAN_STOP_COMMANDS = frozenset({"run", "replay", "demo"})
 _REPO_ROOT = Path(__file__).resolve().parents[1]
 #: Recordings the demo tries, in order (relative to the shared mocap folder).
 DEMO_RECORDINGS = (
@@ -146,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``mocap-tracker`` with ``argv`` (default ``sys.argv[1:]``) and return the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command not in _CLEAN_STOP_COMMANDS:
+        default_sigterm()  # no clean stop of their own: a SIGTERM ends them with its usual status
     _setup_logging(args)
     if getattr(args, "wait_for_subscriber", 0.0) < 0:
         parser.error("--wait-for-subscriber must be >= 0")

@@ -25,7 +25,7 @@ from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 from ._contact_kernels import covered as covered_kernel
 from ._contact_kernels import push_out as push_out_kernel
 from ._kernels import interpolate_poses as interpolate_kernel
-from .collision import CapsuleTrack, round_cone_np
+from .collision import CapsuleTrack, check_backend, round_cone_np
 from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, clear_limbs_track, limb_overlap
 
 __all__ = [
@@ -95,8 +95,7 @@ def interpolate_poses(p0: F64, p1: F64, s: F64, backend: str = "numba") -> F64:
         matrices and :func:`protocol.rotations.quat_slerp`).
     """
     s = np.asarray(s, dtype=np.float64)
-    if backend not in ("numba", "numpy"):
-        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    check_backend(backend)
     if np.shape(p0) != (POSE_SIZE,) or np.shape(p1) != (POSE_SIZE,):
         raise ValueError(f"poses must have shape ({POSE_SIZE},), got {np.shape(p0)} and {np.shape(p1)}")
     if backend == "numba":
@@ -174,8 +173,7 @@ class AvatarKeys:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
         (two projection passes over the nearest capsule); ``backend="numpy"`` runs the plain
         reference of the kernel."""
-        if backend not in ("numba", "numpy"):
-            raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+        check_backend(backend)
         if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
             raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
         if backend == "numba":

@@ -38,7 +38,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 
 from . import _kernels as K
-from .collision import CapsuleTrack, capsules_near, max_relative_travel
+from .collision import CapsuleTrack, capsules_near, check_backend, max_relative_travel
 from .garment import Garment
 from .reference import substeps_np
 
@@ -395,8 +395,7 @@ def structural_strain(model: ClothModel, x: F64, backend: str = "numba") -> F64:
     """Engineering strain ``(l - L) / L`` of every structural spring, ``(S_structural,)``
     (``backend="numpy"``: the plain reference of the kernel)."""
     g = model.garment
-    if backend not in ("numba", "numpy"):
-        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    check_backend(backend)
     if backend == "numba":
         res = np.empty(len(g.structural))
         K.spring_strain(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(g.structural, dtype=np.int64),

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 __all__ = [
     "CapsuleTrack",
     "capsules_near",
+    "check_backend",
     "interpolate_keys",
     "max_relative_travel",
     "penetration_np",
@@ -41,6 +42,15 @@ __all__ = [
 
 F64 = NDArray[np.float64]
 _TINY = 1e-12
+#: Implementations every kernel-backed function of the package offers.
+BACKENDS = ("numba", "numpy")
+
+
+def check_backend(backend: str) -> None:
+    """Raise ``ValueError`` unless ``backend`` is one of :data:`BACKENDS` (the numba kernel or its
+    plain numpy reference)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from protocol.skeleton import CAPSULE_INDEX
 
 from . import _contact_kernels as K
-from .collision import round_cone_np
+from .collision import check_backend, round_cone_np
 
 __all__ = ["ARMS", "LIMBS", "LIMB_CLEARANCE", "MAX_PUSH", "TRUNK", "clear_limbs", "clear_limbs_track",
            "limb_overlap"]
@@ -78,8 +78,7 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
 
     ``backend="numpy"`` runs the plain reference of the kernel.
     """
-    if backend not in ("numba", "numpy"):
-        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
+    check_backend(backend)
     if samples < 1:
         raise ValueError(f"samples must be >= 1, got {samples}")
     if backend == "numba":

@@ -18,7 +18,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 from protocol.session import add_zenoh_args
 
@@ -292,7 +292,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return int(outcome.get("rc", 0))
 
 
-def _is_subject(spec: str | None) -> bool:
+def _is_subject(spec: str | None) -> TypeGuard[str]:
     """Whether ``--measurements`` names the synthetic person's own (``subject`` or ``subject:KEYS``)."""
     return bool(spec) and (spec == "subject" or str(spec).startswith("subject:"))
 
@@ -301,10 +301,7 @@ def _subject_keys(spec: str | None) -> tuple[str, ...]:
     """``subject`` -> every measurement of the scene's person; ``subject:height,leg`` -> those."""
     if not _is_subject(spec):
         return ()
-    assert spec is not None
-    head, _, keys = spec.partition(":")
-    if head != "subject":
-        raise ValueError(f"--measurements {spec!r}: write subject or subject:KEY,...")
+    _, _, keys = spec.partition(":")
     known = ("height", "group", "chest", "waist", "hip", "shoulder", "arm", "leg")
     chosen = tuple(k.strip() for k in keys.split(",") if k.strip()) if keys else known
     if bad := sorted(set(chosen) - set(known)):

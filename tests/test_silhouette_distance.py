@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -160,3 +162,38 @@ def test_kernel_sums_are_bit_equal_to_the_plain_form(rng: np.random.Generator) -
     inside = (np.abs(tr[:, 0]) < 20) & (np.abs(tr[:, 1]) < 10)
     assert inside.any() and (~inside).any()  # both of the kernel's paths are exercised
     np.testing.assert_array_equal(got, want)
+
+
+def test_summed_area_kernel_is_bit_equal_to_the_row_kernel(rng: np.random.Generator) -> None:
+    """XOR's A is integer-valued, so the summed-area kernel (four lookups per run) gives the row
+    kernel's sums to the bit, at one placement per template and on grids, inside and partly outside
+    the image; cwXOR / nwXOR (real-valued A) keep the row kernel."""
+    from tracker_service._kernels import eval_runs_grid_kernel, eval_runs_sat_kernel
+
+    s = _person(arm=0.8)
+    assert all(f.sat is None for f in preprocess(s, "nwxor")) and all(f.sat is None for f in preprocess(s, "cwxor"))
+    for level, feats in enumerate(preprocess(s, "xor")):
+        assert feats.sat is not None and feats.sat.shape == (feats.shape[0] + 1, feats.shape[1] + 1)
+        a = np.diff(feats.integral, axis=1)
+        np.testing.assert_array_equal(feats.sat[1:, 1:], np.cumsum(np.cumsum(a, 0), 1))
+        h, w = feats.shape
+        masks = [pyramid(_person(arm=arm, dx=dx))[level] for arm, dx in ((2.0, 9), (0.3, -20), (1.2, 40))]
+        rs = RunSet([mask_to_runs(m) for m in masks])
+        n, g = 12, 9
+        ids = rng.integers(0, 3, n).astype(np.int64)
+        tr = np.stack([rng.uniform(-0.6, 0.6, (n, g)) * w, rng.uniform(-0.5, 0.5, (n, g)) * h,
+                       rng.uniform(0.6, 1.5, (n, g))], axis=-1)
+        tr[0, 0] = (0.0, 0.0, 1.0)
+        cx, cy, oc = w / 2.0, h / 2.0, w / 16.0
+        for grid in (tr, tr.reshape(-1, 1, 3)):
+            idx = ids if grid.shape[1] == g else np.repeat(ids, g)
+            want = np.empty(grid.shape[:2])
+            got = np.empty(grid.shape[:2])
+            eval_runs_grid_kernel(feats.integral, rs.data, rs.ptr, idx, np.ascontiguousarray(grid), cx, cy, oc, want)
+            eval_runs_sat_kernel(feats.sat, rs.data, rs.ptr, idx, np.ascontiguousarray(grid), cx, cy, oc, got)
+            assert len(np.unique(want)) > g  # placements differ: the comparison is not vacuous
+            np.testing.assert_array_equal(got, want)
+        # through the public functions: the XOR features take the summed-area path, same numbers
+        flat = evaluate_templates(feats, rs, np.repeat(ids, g), tr.reshape(-1, 3), (cx, cy))
+        rows = evaluate_templates(replace(feats, sat=None), rs, np.repeat(ids, g), tr.reshape(-1, 3), (cx, cy))
+        np.testing.assert_array_equal(flat, rows)

@@ -11,6 +11,7 @@ from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
 from tracker_service.silhouette_render import render_labels_with_areas
 from tracker_service.skin import (
+    HAND_PARTS,
     SkinModel,
     cover_cost,
     hand_cost,
@@ -178,8 +179,18 @@ def test_skin_cost_kernel_matches_the_numpy_references() -> None:
     center = (cam.cx, cam.cy)
     ref = hand_cost(obs.distance, hand_points(pts), vis, places, center, 4.0, 16.0, 1.0) + 0.7 * cover_cost(
         obs.samples, pts, places, center, 6.0, 4.0, 16.0)
-    got = skin_cost(obs, pts, vis, places, center, 4.0, 16.0, 1.0, 0.7, 6.0)
+    frac = np.zeros((5, 15), np.float32)  # visible fraction per part: the hands' columns decide
+    frac[:, list(HAND_PARTS)] = np.where(vis, 0.6, 0.1)
+    frac[:, 0] = 1.0
+    got = skin_cost(obs, pts, frac, np.arange(5), places, center, 4.0, 16.0, 1.0, 0.7, 6.0, 0.25)
     np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6)  # float32 joints
+    # read through rows (repeated, out of order) as the filter does; the hand term alone (no cover)
+    rows = np.array([4, 0, 0, 2, 3, 1, 4])
+    hand_only = skin_cost(obs, pts, frac, rows, places[rows], center, 4.0, 16.0, 1.0, 0.0, 6.0, 0.25)
+    want = hand_cost(obs.distance, hand_points(pts)[rows], vis[rows], places[rows], center, 4.0, 16.0, 1.0)
+    np.testing.assert_allclose(hand_only, want, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="rows must index"):
+        skin_cost(obs, pts, frac, np.array([0, 5]), places[:2], center, 4.0, 16.0, 1.0, 0.7, 6.0, 0.25)
 
 
 def test_distance_transform_is_reproducible_and_exact() -> None:

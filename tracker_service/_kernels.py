@@ -224,6 +224,76 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
             out[m, g] = acc[g]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _runs_sum_sat(sat: NDArray[np.float64], data: NDArray[np.int16], r0: int, r1: int, dx: float, dy: float,
+                  s: float, cx: float, cy: float, outside_cost: float) -> float:
+    """:func:`_runs_sum` from a summed-area table: a placed run's rows ``[ya, yb)`` in four lookups
+    instead of one difference per row. The rows and columns are the same integers as
+    :func:`_runs_sum`'s (the same expressions); the sums are the same numbers only when every term
+    is an integer (XOR's ``A`` in {-1, +1}, an integer ``outside_cost``), which the caller checks."""
+    h = sat.shape[0] - 1
+    w = sat.shape[1] - 1
+    acc = 0.0
+    y_prev = -1
+    ya = 0
+    yb = 0
+    for r in range(r0, r1):
+        ur = np.uint64(r)
+        y = data[ur, 0]
+        if y != y_prev:
+            if y == y_prev + 1 and y_prev >= 0:
+                ya = yb
+            else:
+                ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
+            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
+            y_prev = y
+        xl = int(np.floor(cx + dx + s * (data[ur, 1] - cx) + 0.5))
+        xr = int(np.floor(cx + dx + s * (data[ur, 2] - cx) + 0.5))
+        if xr <= xl or yb <= ya:
+            continue
+        if xl >= 0 and xr <= w and ya >= 0 and yb <= h:  # inside the image (the common case)
+            ua = np.uint64(ya)
+            ub = np.uint64(yb)
+            ul = np.uint64(xl)
+            uq = np.uint64(xr)
+            acc += (sat[ub, uq] - sat[ub, ul]) - (sat[ua, uq] - sat[ua, ul])
+            continue
+        cl = min(max(xl, 0), w)
+        cr = min(max(xr, 0), w)
+        ca = min(max(ya, 0), h)
+        cb = min(max(yb, 0), h)
+        acc += (sat[cb, cr] - sat[cb, cl]) - (sat[ca, cr] - sat[ca, cl])
+        acc += outside_cost * ((yb - ya) * (xr - xl) - (cb - ca) * (cr - cl))
+    return acc
+
+
+@njit(cache=True, nogil=True)
+def eval_runs_sat_kernel(sat: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
+                         ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
+                         outside_cost: float, out: NDArray[np.float64]) -> None:
+    """:func:`eval_runs_grid_kernel` from a summed-area table (:func:`_runs_sum_sat`): the same
+    rows and columns per run, four lookups per run instead of two per covered row.
+
+    Exact, and so bit-equal to :func:`eval_runs_grid_kernel`, only when ``A`` and
+    ``outside_cost`` are integers (XOR); callers use it only then.
+
+    Parameters
+    ----------
+    sat : (h + 1, w + 1) float64
+        ``sat[y, x] = sum(A[:y, :x])``.
+    ids : (n,) int64
+    transforms : (n, G, 3) float64
+    out : (n, G) float64
+    Other parameters as :func:`eval_runs_kernel`.
+    """
+    g_n = transforms.shape[1]
+    for m in range(ids.shape[0]):
+        t = ids[m]
+        for g in range(g_n):
+            out[m, g] = _runs_sum_sat(sat, data, ptr[t], ptr[t + 1], transforms[m, g, 0], transforms[m, g, 1],
+                                      transforms[m, g, 2], cx, cy, outside_cost)
+
+
 @njit(cache=True, nogil=True)
 def _popcount64(x: np.uint64) -> np.uint64:
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
@@ -615,12 +685,14 @@ def lower_column_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64], lower_f
 
 @njit(cache=True, nogil=True)
 def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64], points: NDArray[np.float32],
-                     segments: NDArray[np.int64], hands: NDArray[np.int64], visible: NDArray[np.bool_],
+                     rows: NDArray[np.int64], segments: NDArray[np.int64], hands: NDArray[np.int64],
+                     visible: NDArray[np.float32], hand_parts: NDArray[np.int64], min_visible: float,
                      places: NDArray[np.float64], cx: float, cy: float, sigma: float, cap: float, hidden: float,
                      cover_weight: float, radius: float, out: NDArray[np.float64]) -> None:
     """Skin cue of templates at placements: hand term plus ``cover_weight`` times the cover term
     (:func:`tracker_service.skin.hand_cost` + :func:`tracker_service.skin.cover_cost`, their
-    numpy references).
+    numpy references). Templates are read through ``rows`` (no gathered copies); only the hand
+    joints are placed unless the cover term needs the bones.
 
     Parameters
     ----------
@@ -628,14 +700,20 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
         Distance to the nearest skin pixel.
     samples : (K, 2) float64
         Skin pixels ``(u, v)``.
-    points : (n, J, 2) float32
-        Joints of each template at the reference placement.
+    points : (L, J, 2) float32
+        Joints of every template at the reference placement.
+    rows : (n,) int64
+        Template (row of ``points`` and ``visible``) of each evaluation.
     segments : (S, 2) int64
         Joint pairs of the skin-bearing bones.
     hands : (2, 2) int64
         ``(wrist, hand_tip)`` joints of the left and right hand.
-    visible : (n, 2) bool
-        Whether each template shows each hand.
+    visible : (L, P) float32
+        Visible fraction of each part of each template.
+    hand_parts : (2,) int64
+        Columns of ``visible`` of the left and right hand.
+    min_visible : float
+        A hand counts as shown where its visible fraction exceeds this.
     places : (n, G, 3) float64
         Placements ``(dx, dy, s)``.
     cx, cy, sigma, cap, hidden, cover_weight, radius : float
@@ -646,17 +724,26 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
     n, g = places.shape[0], places.shape[1]
     nj = points.shape[1]
     k = samples.shape[0]
+    cover = cover_weight > 0.0 and k > 0
     u = np.empty(nj)
     v = np.empty(nj)
     for i in range(n):
+        r = rows[i]
         for j in range(g):
             dx, dy, s = places[i, j, 0], places[i, j, 1], places[i, j, 2]
-            for q in range(nj):
-                u[q] = cx + dx + s * (points[i, q, 0] - cx)
-                v[q] = cy + dy + s * (points[i, q, 1] - cy)
+            if cover:
+                for q in range(nj):
+                    u[q] = cx + dx + s * (points[r, q, 0] - cx)
+                    v[q] = cy + dy + s * (points[r, q, 1] - cy)
+            else:
+                for hh in range(2):
+                    for end in range(2):
+                        q = hands[hh, end]
+                        u[q] = cx + dx + s * (points[r, q, 0] - cx)
+                        v[q] = cy + dy + s * (points[r, q, 1] - cy)
             acc = 0.0
             for hh in range(2):
-                if not visible[i, hh]:
+                if not visible[r, hand_parts[hh]] > min_visible:
                     acc += hidden
                     continue
                 hu = 0.5 * (u[hands[hh, 0]] + u[hands[hh, 1]])
@@ -668,7 +755,7 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
                     if 0 <= iu < w and 0 <= iv < h:
                         d = min(float(distance[iv, iu]), cap)
                 acc += 0.5 * (d / sigma) ** 2
-            if cover_weight > 0.0 and k > 0:
+            if cover:
                 cov = 0.0
                 for m in range(k):
                     best = np.inf

@@ -209,12 +209,18 @@ class LevelFeatures:
         25 % each way; normalises distances across sizes and levels.
     shape : (int, int)
         ``(h, w)`` of the level.
+    sat : (h + 1, w + 1) float64 or None
+        Summed-area table of ``A`` (``sat[y, x] = sum(A[:y, :x])``), only where ``A`` is
+        integer-valued (XOR: every rectangle's sum is exact, so the distance kernel reads a run's
+        rows in four lookups and gets the same number; see
+        :func:`tracker_service._kernels.eval_runs_sat_kernel`). None for cwXOR / nwXOR.
     """
 
     integral: NDArray[np.float64]
     b: float
     window_area: float
     shape: tuple[int, int]
+    sat: NDArray[np.float64] | None = None
 
 
 def preprocess(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: float = 5.0, beta: float = 1.0,
@@ -245,5 +251,9 @@ def preprocess(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: flo
             area = float(hh * ww)
         else:
             area = float(lvl.size)
-        out.append(LevelFeatures(integral, b, max(area, 1.0), (lvl.shape[0], lvl.shape[1])))
+        sat = None
+        if distance == "xor":  # A in {-1, +1}: exact sums over any rectangle
+            sat = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
+            np.cumsum(integral, axis=0, out=sat[1:])
+        out.append(LevelFeatures(integral, b, max(area, 1.0), (lvl.shape[0], lvl.shape[1]), sat))
     return out

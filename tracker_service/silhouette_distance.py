@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._kernels import eval_runs_grid_kernel, eval_runs_kernel
+from ._kernels import eval_runs_grid_kernel, eval_runs_kernel, eval_runs_sat_kernel
 from .features import Distance, LevelFeatures, core_weight
 
 __all__ = [
@@ -103,6 +103,12 @@ class RunSet:
         return self.data[self.ptr[i]: self.ptr[i + 1]]
 
 
+def _exact_sat(feat: LevelFeatures, outside_cost: float) -> NDArray[np.float64] | None:
+    """The level's summed-area table where the summed-area kernel gives the row kernel's sums to
+    the bit (integer ``A``, XOR, and an integer outside cost); otherwise None."""
+    return feat.sat if feat.sat is not None and float(outside_cost).is_integer() else None
+
+
 def evaluate_templates(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int64],
                        transforms: NDArray[np.float64], center: tuple[float, float],
                        outside_cost: float | None = None) -> NDArray[np.float64]:
@@ -129,9 +135,15 @@ def evaluate_templates(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int6
         Distances ``d(S, T)``.
     """
     oc = feat.shape[1] / 16.0 if outside_cost is None else float(outside_cost)
+    tr = np.ascontiguousarray(transforms, np.float64)
+    idx = np.ascontiguousarray(ids, np.int64)
     out = np.empty(len(ids))
-    eval_runs_kernel(feat.integral, runset.data, runset.ptr, np.ascontiguousarray(ids, np.int64),
-                     np.ascontiguousarray(transforms, np.float64), float(center[0]), float(center[1]), oc, out)
+    if (sat := _exact_sat(feat, oc)) is not None:
+        eval_runs_sat_kernel(sat, runset.data, runset.ptr, idx, tr.reshape(-1, 1, 3), float(center[0]),
+                             float(center[1]), oc, out.reshape(-1, 1))
+    else:
+        eval_runs_kernel(feat.integral, runset.data, runset.ptr, idx, tr, float(center[0]), float(center[1]), oc,
+                         out)
     out += feat.b
     out /= feat.window_area
     return out
@@ -158,8 +170,12 @@ def evaluate_template_grid(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.
     oc = feat.shape[1] / 16.0 if outside_cost is None else float(outside_cost)
     tr = np.ascontiguousarray(transforms, np.float64)
     out = np.empty(tr.shape[:2])
-    eval_runs_grid_kernel(feat.integral, runset.data, runset.ptr, np.ascontiguousarray(ids, np.int64), tr,
-                          float(center[0]), float(center[1]), oc, out)
+    idx = np.ascontiguousarray(ids, np.int64)
+    if (sat := _exact_sat(feat, oc)) is not None:
+        eval_runs_sat_kernel(sat, runset.data, runset.ptr, idx, tr, float(center[0]), float(center[1]), oc, out)
+    else:
+        eval_runs_grid_kernel(feat.integral, runset.data, runset.ptr, idx, tr, float(center[0]), float(center[1]),
+                              oc, out)
     out += feat.b
     out /= feat.window_area
     return out

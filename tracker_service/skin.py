@@ -311,29 +311,45 @@ _SEGMENTS = np.array(SKIN_SEGMENTS, np.int64)
 _HANDS = np.array(_HAND_JOINTS, np.int64)
 
 
-def skin_cost(obs: SkinObservation, joint_points: NDArray[np.float32], visible: NDArray[np.bool_],
-              places: NDArray[np.float64], center: tuple[float, float], sigma_px: float, cap_px: float,
-              hidden_cost: float, cover_weight: float, radius_px: float) -> NDArray[np.float64]:
+def skin_cost(obs: SkinObservation, joint_points: NDArray[np.float32], visible: NDArray[np.float32],
+              rows: NDArray[np.int64], places: NDArray[np.float64], center: tuple[float, float], sigma_px: float,
+              cap_px: float, hidden_cost: float, cover_weight: float, radius_px: float, min_visible: float,
+              hand_parts: tuple[int, int] = HAND_PARTS) -> NDArray[np.float64]:
     """``hand_cost + cover_weight * cover_cost`` in one numba pass (:func:`hand_cost` and
-    :func:`cover_cost` are its references).
+    :func:`cover_cost` are its references), templates read through ``rows``.
 
     Parameters
     ----------
     obs : SkinObservation
-    joint_points : (n, J, 2) float32
-    visible : (n, 2) bool
+    joint_points : (L, J, 2) float32
+        Joints of every template at the reference placement (the database's leaf points).
+    visible : (L, P) float32
+        Visible fraction of each part of every template.
+    rows : (n,) int64
+        Template of each evaluation (index into ``joint_points`` and ``visible``).
     places : (n, G, 3) float64
     center : (float, float)
     sigma_px, cap_px, hidden_cost, cover_weight, radius_px : float
+    min_visible : float
+        A hand counts as shown where its part's visible fraction exceeds this (a hidden hand costs
+        ``hidden_cost``).
+    hand_parts : (int, int)
+        Columns of ``visible`` of the left and right hand.
 
     Returns
     -------
     (n, G) float64
     """
+    idx = np.ascontiguousarray(rows, np.int64)
+    pts = np.ascontiguousarray(joint_points, np.float32)
+    vis = np.ascontiguousarray(visible, np.float32)
+    if idx.ndim != 1 or places.shape[:1] != idx.shape or (len(idx) and not (0 <= idx.min() and idx.max() < len(pts)
+                                                                        and len(vis) == len(pts))):
+        raise ValueError(f"rows must index the {len(pts)} templates, one per placement group "
+                         f"(rows {idx.shape}, places {places.shape}, visible {vis.shape})")
     out = np.empty(places.shape[:2])
-    skin_cost_kernel(obs.distance, np.ascontiguousarray(obs.samples, np.float64),
-                     np.ascontiguousarray(joint_points, np.float32), _SEGMENTS, _HANDS,
-                     np.ascontiguousarray(visible), np.ascontiguousarray(places, np.float64),
+    skin_cost_kernel(obs.distance, np.ascontiguousarray(obs.samples, np.float64), pts, idx, _SEGMENTS, _HANDS,
+                     vis, np.array(hand_parts, np.int64), float(min_visible), np.ascontiguousarray(places, np.float64),
                      float(center[0]), float(center[1]), float(sigma_px), float(cap_px), float(hidden_cost),
                      float(cover_weight), float(radius_px), out)
     return out

@@ -302,10 +302,10 @@ def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArr
         return 0.0
     tree = db.tree
     leaves = nodes if level == tree.n_levels - 1 else tree.template_leaf[tree.node_template[level][nodes]]
-    vis = db.leaf_visible[leaves][:, list(HAND_PARTS)] > params.skin_min_visible
-    c = skin_cost(skin, db.leaf_points[leaves], vis, places, db.center, params.skin_sigma_px, params.skin_cap_px,
-                  params.skin_hidden_cost, params.skin_cover_weight if level >= params.skin_cover_from_level else 0.0,
-                  params.skin_cover_radius_px)
+    c = skin_cost(skin, db.leaf_points, db.leaf_visible, leaves, places, db.center, params.skin_sigma_px,
+                  params.skin_cap_px, params.skin_hidden_cost,
+                  params.skin_cover_weight if level >= params.skin_cover_from_level else 0.0,
+                  params.skin_cover_radius_px, params.skin_min_visible, HAND_PARTS)
     return params.skin_weight * c
 
 

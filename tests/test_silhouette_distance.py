@@ -164,11 +164,31 @@ def test_kernel_sums_are_bit_equal_to_the_plain_form(rng: np.random.Generator) -
     np.testing.assert_array_equal(got, want)
 
 
+def test_run_rectangles_cover_the_runs_and_match_the_reference(rng: np.random.Generator) -> None:
+    from tracker_service.silhouette_distance import run_rectangles, run_rectangles_reference
+
+    masks = [pyramid(_person(arm=a, dx=d))[1] for a, d in ((0.3, 0), (2.0, 30))] + [rng.random((60, 80)) > 0.5]
+    masks.append(np.zeros((60, 80), bool))  # a template without runs
+    rs = RunSet([mask_to_runs(m) for m in masks])
+    rects, rptr = run_rectangles(rs.data, rs.ptr)
+    assert rects.dtype == np.int16 and rects.shape[1] == 4 and rptr[-1] == len(rects) and len(rptr) == len(rs) + 1
+    assert rptr[2] < 0.7 * rs.ptr[2]  # the two people's rows merge (about half their runs)
+    for i, m in enumerate(masks):
+        got = rects[rptr[i]: rptr[i + 1]]
+        np.testing.assert_array_equal(got, run_rectangles_reference(rs.runs(i)))
+        back = np.zeros(m.shape, int)
+        for y0, y1, x0, x1 in got.astype(np.int64):
+            back[y0:y1, x0:x1] += 1
+        np.testing.assert_array_equal(back, m.astype(int))  # every pixel in exactly one rectangle
+    with pytest.raises(ValueError, match="pointer"):
+        run_rectangles(rs.data, rs.ptr[:-2])
+
+
 def test_summed_area_kernel_is_bit_equal_to_the_row_kernel(rng: np.random.Generator) -> None:
-    """XOR's A is integer-valued, so the summed-area kernel (four lookups per run) gives the row
+    """XOR's A is integer-valued, so the summed-area kernel (four lookups per rectangle) gives the row
     kernel's sums to the bit, at one placement per template and on grids, inside and partly outside
     the image; cwXOR / nwXOR (real-valued A) keep the row kernel."""
-    from tracker_service._kernels import eval_runs_grid_kernel, eval_runs_sat_kernel
+    from tracker_service._kernels import eval_rects_sat_kernel, eval_runs_grid_kernel
 
     s = _person(arm=0.8)
     assert all(f.sat is None for f in preprocess(s, "nwxor")) and all(f.sat is None for f in preprocess(s, "cwxor"))
@@ -190,7 +210,8 @@ def test_summed_area_kernel_is_bit_equal_to_the_row_kernel(rng: np.random.Genera
             want = np.empty(grid.shape[:2])
             got = np.empty(grid.shape[:2])
             eval_runs_grid_kernel(feats.integral, rs.data, rs.ptr, idx, np.ascontiguousarray(grid), cx, cy, oc, want)
-            eval_runs_sat_kernel(feats.sat, rs.data, rs.ptr, idx, np.ascontiguousarray(grid), cx, cy, oc, got)
+            rects, rptr = rs.rectangles()
+            eval_rects_sat_kernel(feats.sat, rects, rptr, idx, np.ascontiguousarray(grid), cx, cy, oc, got)
             assert len(np.unique(want)) > g  # placements differ: the comparison is not vacuous
             np.testing.assert_array_equal(got, want)
         # through the public functions: the XOR features take the summed-area path, same numbers

@@ -224,74 +224,126 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
             out[m, g] = acc[g]
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _runs_sum_sat(sat: NDArray[np.float64], data: NDArray[np.int16], r0: int, r1: int, dx: float, dy: float,
-                  s: float, cx: float, cy: float, outside_cost: float) -> float:
-    """:func:`_runs_sum` from a summed-area table: a placed run's rows ``[ya, yb)`` in four lookups
-    instead of one difference per row. The rows and columns are the same integers as
-    :func:`_runs_sum`'s (the same expressions); the sums are the same numbers only when every term
-    is an integer (XOR's ``A`` in {-1, +1}, an integer ``outside_cost``), which the caller checks."""
-    h = sat.shape[0] - 1
-    w = sat.shape[1] - 1
-    acc = 0.0
-    y_prev = -1
-    ya = 0
-    yb = 0
-    for r in range(r0, r1):
-        ur = np.uint64(r)
-        y = data[ur, 0]
-        if y != y_prev:
-            if y == y_prev + 1 and y_prev >= 0:
-                ya = yb
-            else:
-                ya = int(np.floor(cy + dy + s * (y - cy) + 0.5))
-            yb = int(np.floor(cy + dy + s * (y + 1 - cy) + 0.5))
-            y_prev = y
-        xl = int(np.floor(cx + dx + s * (data[ur, 1] - cx) + 0.5))
-        xr = int(np.floor(cx + dx + s * (data[ur, 2] - cx) + 0.5))
-        if xr <= xl or yb <= ya:
-            continue
-        if xl >= 0 and xr <= w and ya >= 0 and yb <= h:  # inside the image (the common case)
-            ua = np.uint64(ya)
-            ub = np.uint64(yb)
-            ul = np.uint64(xl)
-            uq = np.uint64(xr)
-            acc += (sat[ub, uq] - sat[ub, ul]) - (sat[ua, uq] - sat[ua, ul])
-            continue
-        cl = min(max(xl, 0), w)
-        cr = min(max(xr, 0), w)
-        ca = min(max(ya, 0), h)
-        cb = min(max(yb, 0), h)
-        acc += (sat[cb, cr] - sat[cb, cl]) - (sat[ca, cr] - sat[ca, cl])
-        acc += outside_cost * ((yb - ya) * (xr - xl) - (cb - ca) * (cr - cl))
-    return acc
+@njit(cache=True, nogil=True)
+def run_rectangles_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64]
+                          ) -> tuple[NDArray[np.int16], NDArray[np.int64]]:
+    """Merge each template's runs into rectangles: a run continues the rectangle of the row above
+    when that row has a run with the same ``(x_start, x_end)``.
+
+    Parameters
+    ----------
+    data : (R, 3) int16
+        Runs ``(y, x_start, x_end)``, each template's rows in increasing order.
+    ptr : (T + 1,) int64
+
+    Returns
+    -------
+    rects : (Q, 4) int16
+        ``(y_start, y_end, x_start, x_end)``, rows ``[y_start, y_end)``; every run of the template
+        lies in exactly one rectangle, in the order the rectangles are started.
+    rect_ptr : (T + 1,) int64
+    """
+    out = np.empty((data.shape[0], 4), np.int16)
+    rptr = np.zeros(ptr.shape[0], np.int64)
+    prev = np.empty(max(data.shape[0], 1), np.int64)  # rectangles open in the previous row
+    cur = np.empty(max(data.shape[0], 1), np.int64)
+    q = 0
+    for t in range(ptr.shape[0] - 1):
+        n_prev = 0
+        n_cur = 0
+        y_cur = -2
+        y_prev = -2
+        for r in range(ptr[t], ptr[t + 1]):
+            y = data[r, 0]
+            x0 = data[r, 1]
+            x1 = data[r, 2]
+            if y != y_cur:
+                for i in range(n_cur):
+                    prev[i] = cur[i]
+                n_prev = n_cur
+                y_prev = y_cur
+                n_cur = 0
+                y_cur = y
+            k = -1
+            if y_prev == y - 1:
+                for i in range(n_prev):
+                    j = prev[i]
+                    if j >= 0 and out[j, 2] == x0 and out[j, 3] == x1:
+                        k = j
+                        prev[i] = -1  # one run per rectangle and row
+                        break
+            if k < 0:
+                k = q
+                out[q, 0] = y
+                out[q, 2] = x0
+                out[q, 3] = x1
+                q += 1
+            out[k, 1] = y + 1
+            cur[n_cur] = k
+            n_cur += 1
+        rptr[t + 1] = q
+    return out[:q].copy(), rptr
 
 
 @njit(cache=True, nogil=True)
-def eval_runs_sat_kernel(sat: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
-                         ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
-                         outside_cost: float, out: NDArray[np.float64]) -> None:
-    """:func:`eval_runs_grid_kernel` from a summed-area table (:func:`_runs_sum_sat`): the same
-    rows and columns per run, four lookups per run instead of two per covered row.
+def eval_rects_sat_kernel(sat: NDArray[np.float64], rects: NDArray[np.int16], ptr: NDArray[np.int64],
+                          ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
+                          outside_cost: float, out: NDArray[np.float64]) -> None:
+    """:func:`eval_runs_grid_kernel` from a summed-area table, over rectangles
+    (:func:`run_rectangles_kernel`). A run's rows and columns are the same integers as the run
+    kernels' (the same expressions); a rectangle of template rows ``[y0, y1)`` covers the target
+    rows ``[ya(y0), ya(y1))`` -- the union of its rows' own, since a row's end is the next row's
+    start (the same expression) -- at the same columns, so it adds what its runs add, in four
+    lookups instead of one difference per covered row and run.
 
-    Exact, and so bit-equal to :func:`eval_runs_grid_kernel`, only when ``A`` and
-    ``outside_cost`` are integers (XOR); callers use it only then.
+    The sums are the run kernels' to the bit only when every term is an integer (XOR's ``A`` in
+    {-1, +1}, an integer ``outside_cost``): any order of exact additions gives the same number.
+    Callers use it only then (:func:`tracker_service.silhouette_distance.evaluate_templates`).
 
     Parameters
     ----------
     sat : (h + 1, w + 1) float64
         ``sat[y, x] = sum(A[:y, :x])``.
+    rects : (Q, 4) int16
+        ``(y_start, y_end, x_start, x_end)``.
+    ptr : (T + 1,) int64
     ids : (n,) int64
     transforms : (n, G, 3) float64
     out : (n, G) float64
     Other parameters as :func:`eval_runs_kernel`.
     """
+    h = sat.shape[0] - 1
+    w = sat.shape[1] - 1
     g_n = transforms.shape[1]
     for m in range(ids.shape[0]):
         t = ids[m]
         for g in range(g_n):
-            out[m, g] = _runs_sum_sat(sat, data, ptr[t], ptr[t + 1], transforms[m, g, 0], transforms[m, g, 1],
-                                      transforms[m, g, 2], cx, cy, outside_cost)
+            dx = transforms[m, g, 0]
+            dy = transforms[m, g, 1]
+            s = transforms[m, g, 2]
+            acc = 0.0
+            for r in range(ptr[t], ptr[t + 1]):
+                ur = np.uint64(r)
+                ya = int(np.floor(cy + dy + s * (rects[ur, 0] - cy) + 0.5))
+                yb = int(np.floor(cy + dy + s * (rects[ur, 1] - cy) + 0.5))
+                xl = int(np.floor(cx + dx + s * (rects[ur, 2] - cx) + 0.5))
+                xr = int(np.floor(cx + dx + s * (rects[ur, 3] - cx) + 0.5))
+                if xr <= xl or yb <= ya:
+                    continue
+                if xl >= 0 and xr <= w and ya >= 0 and yb <= h:
+                    ua = np.uint64(ya)
+                    ub = np.uint64(yb)
+                    ul = np.uint64(xl)
+                    uq = np.uint64(xr)
+                    acc += (sat[ub, uq] - sat[ub, ul]) - (sat[ua, uq] - sat[ua, ul])
+                    continue
+                cl = min(max(xl, 0), w)
+                cr = min(max(xr, 0), w)
+                ca = min(max(ya, 0), h)
+                cb = min(max(yb, 0), h)
+                acc += (sat[cb, cr] - sat[cb, cl]) - (sat[ca, cr] - sat[ca, cl])
+                acc += outside_cost * ((yb - ya) * (xr - xl) - (cb - ca) * (cr - cl))
+            out[m, g] = acc
 
 
 @njit(cache=True, nogil=True)

@@ -115,6 +115,10 @@ def main() -> int:
                            "host_probe_s": host_probe(), "pinned_cpu": args.cpu if args.cpu >= 0 else None,
                            "db_rss_mb": round(_rss_mb() - rss0, 1), "templates": loaded.db.n_leaves,
                            "tree_levels": loaded.db.tree.level_sizes}
+    rss1 = _rss_mb()
+    for rs in loaded.db.level_runs:  # the distance kernel's rectangles, built on first use (warm-up)
+        rs.rectangles()
+    res["rectangles_rss_mb"] = round(_rss_mb() - rss1, 1)
     del full
     held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
     pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]

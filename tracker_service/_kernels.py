@@ -779,6 +779,10 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
     cover = cover_weight > 0.0 and k > 0
     u = np.empty(nj)
     v = np.empty(nj)
+    n_seg = segments.shape[0]
+    su = np.ascontiguousarray(samples[:, 0])
+    sv = np.ascontiguousarray(samples[:, 1])
+    best = np.empty(k)
     for i in range(n):
         r = rows[i]
         for j in range(g):
@@ -808,20 +812,22 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
                         d = min(float(distance[iv, iu]), cap)
                 acc += 0.5 * (d / sigma) ** 2
             if cover:
-                cov = 0.0
                 for m in range(k):
-                    best = np.inf
-                    for t in range(segments.shape[0]):
-                        ax, ay = u[segments[t, 0]], v[segments[t, 0]]
-                        bx, by = u[segments[t, 1]] - ax, v[segments[t, 1]] - ay
-                        px, py = samples[m, 0] - ax, samples[m, 1] - ay
-                        ll = max(bx * bx + by * by, 1e-9)
+                    best[m] = np.inf
+                for t in range(n_seg):  # bone by bone over all samples: a loop the compiler vectorises
+                    ax, ay = u[segments[t, 0]], v[segments[t, 0]]
+                    bx, by = u[segments[t, 1]] - ax, v[segments[t, 1]] - ay
+                    ll = max(bx * bx + by * by, 1e-9)
+                    for m in range(k):
+                        px, py = su[m] - ax, sv[m] - ay
                         tt = min(max((px * bx + py * by) / ll, 0.0), 1.0)
                         ex, ey = px - tt * bx, py - tt * by
                         d2 = ex * ex + ey * ey
-                        if d2 < best:
-                            best = d2
-                    e = cap if not np.isfinite(best) else min(max(np.sqrt(best) - radius, 0.0), cap)
+                        if d2 < best[m]:
+                            best[m] = d2
+                cov = 0.0
+                for m in range(k):
+                    e = cap if not np.isfinite(best[m]) else min(max(np.sqrt(best[m]) - radius, 0.0), cap)
                     cov += 0.5 * (e / sigma) ** 2
                 acc += cover_weight * 2.0 * cov / k
             out[i, j] = acc

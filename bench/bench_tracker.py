@@ -70,6 +70,8 @@ def _no_pyramid(db: FilterDB, body: Any) -> FilterDB:
 def pyramid_speedup(loaded: Any, n_frames: int = 60) -> dict[str, float]:
     """Filter time per frame with and without the pyramid on the same capsule silhouettes."""
     db_full = _no_pyramid(loaded.db, loaded.body)
+    for rs in (*loaded.db.level_runs, *db_full.level_runs):  # the XOR kernel's rectangles, outside the timing
+        rs.rectangles()
     cam = loaded.camera
     entry = [e for i, e in enumerate(index_entries()) if is_held_out(i)][6]
     subject = BODY_MODELS[7].body
@@ -136,6 +138,8 @@ def main() -> int:
         "xor_shoes_publish_only": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.0)),
         "xor_map_pose": TrackerConfig(distance="xor", use_mean_pose=False),
         "xor_no_height_hypothesis": TrackerConfig(distance="xor", filter=FilterParams(height_hypothesis=False)),
+        # the likelihood-driven proposals of sessions 6-15 (half as many as the default's)
+        "xor_proposals_48_96": TrackerConfig(distance="xor", filter=FilterParams(keep_likelihood=(48, 96))),
         # every node on its whole placement grid (no screening: the search before session 6)
         "xor_exhaustive": TrackerConfig(distance="xor", filter=FilterParams(screen=())),
         # no selection: the person's own measurements given (the user enters them; --measurements)

@@ -228,21 +228,9 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
 def run_rectangles_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64]
                           ) -> tuple[NDArray[np.int16], NDArray[np.int64]]:
     """Merge each template's runs into rectangles: a run continues the rectangle of the row above
-    when that row has a run with the same ``(x_start, x_end)``.
-
-    Parameters
-    ----------
-    data : (R, 3) int16
-        Runs ``(y, x_start, x_end)``, each template's rows in increasing order.
-    ptr : (T + 1,) int64
-
-    Returns
-    -------
-    rects : (Q, 4) int16
-        ``(y_start, y_end, x_start, x_end)``, rows ``[y_start, y_end)``; every run of the template
-        lies in exactly one rectangle, in the order the rectangles are started.
-    rect_ptr : (T + 1,) int64
-    """
+    when that row has a run with the same ``(x_start, x_end)``; every run lies in exactly one
+    rectangle, in the order the rectangles are started. Inputs and outputs as
+    :func:`tracker_service.silhouette_distance.run_rectangles` (which checks them)."""
     out = np.empty((data.shape[0], 4), np.int16)
     rptr = np.zeros(ptr.shape[0], np.int64)
     prev = np.empty(max(data.shape[0], 1), np.int64)  # rectangles open in the previous row

@@ -218,3 +218,20 @@ def test_summed_area_kernel_is_bit_equal_to_the_row_kernel(rng: np.random.Genera
         flat = evaluate_templates(feats, rs, np.repeat(ids, g), tr.reshape(-1, 3), (cx, cy))
         rows = evaluate_templates(replace(feats, sat=None), rs, np.repeat(ids, g), tr.reshape(-1, 3), (cx, cy))
         np.testing.assert_array_equal(flat, rows)
+
+
+def test_xor_features_kernel_equals_the_numpy_path(rng: np.random.Generator) -> None:
+    """preprocess's one-pass XOR kernel gives the numpy path's row sums, summed-area table, B and
+    window to the bit (every sum an exact integer), for people, noise, empty and full frames."""
+    from tracker_service.features import preprocess_reference
+
+    masks = [_person(arm=1.0), _person(dx=150), rng.random((240, 320)) > 0.7, np.zeros((240, 320), bool),
+             np.ones((240, 320), bool)]
+    for m in masks:
+        got, want = preprocess(m, "xor"), preprocess_reference(m, "xor")
+        for g, w in zip(got, want, strict=True):
+            assert g.sat is not None and w.sat is not None and g.shape == w.shape
+            np.testing.assert_array_equal(g.integral, w.integral)
+            np.testing.assert_array_equal(g.sat, w.sat)
+            assert (g.b, g.window_area) == (w.b, w.window_area)
+    assert preprocess(masks[0], "xor")[2].b == masks[0].sum() > 0  # not vacuous

@@ -225,6 +225,58 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
 
 
 @njit(cache=True, nogil=True)
+def xor_level_kernel(mask: NDArray[np.bool_], integral: NDArray[np.float64], sat: NDArray[np.float64]
+                     ) -> tuple[int, int, int, int, int]:
+    """XOR's matching image of one pyramid level in one pass: ``A = 1 - 2 S`` summed along rows
+    (eq. 12) and over rectangles, the silhouette's area and bounding box (reference: the numpy
+    path of :func:`tracker_service.features.preprocess`; every sum is an exact integer).
+
+    Parameters
+    ----------
+    mask : (h, w) bool
+    integral : (h, w + 1) float64
+        Written: ``integral[y, x] = sum(A[y, :x])``.
+    sat : (h + 1, w + 1) float64
+        Written: ``sat[y, x] = sum(A[:y, :x])``.
+
+    Returns
+    -------
+    count, y_min, y_max, x_min, x_max : int
+        Pixels of ``S`` and their bounding box (zeros when ``S`` is empty).
+    """
+    h, w = mask.shape
+    count = 0
+    y0 = h
+    y1 = -1
+    x0 = w
+    x1 = -1
+    for x in range(w + 1):
+        sat[0, x] = 0.0
+    for y in range(h):
+        acc = 0.0
+        integral[y, 0] = 0.0
+        sat[y + 1, 0] = 0.0
+        for x in range(w):
+            if mask[y, x]:
+                acc -= 1.0
+                count += 1
+                if y < y0:
+                    y0 = y
+                y1 = y
+                if x < x0:
+                    x0 = x
+                if x > x1:
+                    x1 = x
+            else:
+                acc += 1.0
+            integral[y, x + 1] = acc
+            sat[y + 1, x + 1] = sat[y, x + 1] + acc
+    if count == 0:
+        return 0, 0, 0, 0, 0
+    return count, y0, y1, x0, x1
+
+
+@njit(cache=True, nogil=True)
 def run_rectangles_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64]
                           ) -> tuple[NDArray[np.int16], NDArray[np.int64]]:
     """Merge each template's runs into rectangles: a run continues the rectangle of the row above

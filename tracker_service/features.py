@@ -29,6 +29,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ._kernels import xor_level_kernel
+
 __all__ = [
     "DISTANCES",
     "LEVEL_SIZES",
@@ -39,6 +41,7 @@ __all__ = [
     "distance_transform",
     "match_image",
     "preprocess",
+    "preprocess_reference",
     "pyramid",
     "shape_skeleton",
 ]
@@ -239,6 +242,25 @@ def preprocess(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: flo
     -------
     list of LevelFeatures, one per level.
     """
+    if distance == "xor":  # one numba pass per level (the numpy path below is its reference)
+        out = []
+        for lvl in pyramid(mask, sizes):
+            h, w = lvl.shape
+            integral = np.empty((h, w + 1))
+            sat = np.empty((h + 1, w + 1))
+            count, y0, y1, x0, x1 = xor_level_kernel(np.ascontiguousarray(lvl), integral, sat)
+            area = float(((y1 - y0 + 1) * 1.5) * ((x1 - x0 + 1) * 1.5)) if count else float(lvl.size)
+            out.append(LevelFeatures(integral, float(count), max(area, 1.0), (h, w), sat))
+        return out
+    return preprocess_reference(mask, distance, alpha, beta, sizes)
+
+
+def preprocess_reference(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: float = 5.0,
+                         beta: float = 1.0, sizes: tuple[tuple[int, int], ...] = LEVEL_SIZES
+                         ) -> list[LevelFeatures]:
+    """:func:`preprocess` in numpy: :func:`match_image`, its row sums and, for XOR (``A`` in
+    {-1, +1}: exact sums over any rectangle), the summed-area table. The path of cwXOR and nwXOR,
+    and the reference of XOR's kernel."""
     out = []
     for lvl in pyramid(mask, sizes):
         a, b = match_image(lvl, distance, alpha, beta)
@@ -252,7 +274,7 @@ def preprocess(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: flo
         else:
             area = float(lvl.size)
         sat = None
-        if distance == "xor":  # A in {-1, +1}: exact sums over any rectangle
+        if distance == "xor":
             sat = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
             np.cumsum(integral, axis=0, out=sat[1:])
         out.append(LevelFeatures(integral, b, max(area, 1.0), (lvl.shape[0], lvl.shape[1]), sat))

@@ -235,3 +235,14 @@ def test_xor_features_kernel_equals_the_numpy_path(rng: np.random.Generator) -> 
             np.testing.assert_array_equal(g.sat, w.sat)
             assert (g.b, g.window_area) == (w.b, w.window_area)
     assert preprocess(masks[0], "xor")[2].b == masks[0].sum() > 0  # not vacuous
+
+
+def test_bad_input_to_the_new_kernels_is_an_error_not_a_crash() -> None:
+    """The rectangle and skin kernels have no bounds checks: their wrappers reject what would
+    make them read or write out of range (review of session 16)."""
+    from tracker_service.silhouette_distance import run_rectangles
+
+    with pytest.raises(ValueError, match="rows"):
+        run_rectangles(np.array([[-1, 0, 4]], np.int16), np.array([0, 1]))
+    with pytest.raises(ValueError, match="rows"):
+        run_rectangles(np.array([[32767, 0, 4]], np.int16), np.array([0, 1]))

@@ -191,6 +191,13 @@ def test_skin_cost_kernel_matches_the_numpy_references() -> None:
     np.testing.assert_allclose(hand_only, want, rtol=1e-6, atol=1e-6)
     with pytest.raises(ValueError, match="rows must index"):
         skin_cost(obs, pts, frac, np.array([0, 5]), places[:2], center, 4.0, 16.0, 1.0, 0.7, 6.0, 0.25)
+    # shapes the kernel (no bounds checks) would read or write out of range are errors
+    with pytest.raises(ValueError, match="joint points"):
+        skin_cost(obs, pts[:, :3], frac, np.arange(5), places, center, 4.0, 16.0, 1.0, 0.0, 6.0, 0.25)
+    with pytest.raises(ValueError, match="hand"):
+        skin_cost(obs, pts, frac[:, :3], np.arange(5), places, center, 4.0, 16.0, 1.0, 0.0, 6.0, 0.25)
+    with pytest.raises(ValueError, match="places"):
+        skin_cost(obs, pts, frac, np.arange(5), places[..., :2], center, 4.0, 16.0, 1.0, 0.0, 6.0, 0.25)
 
 
 def test_distance_transform_is_reproducible_and_exact() -> None:

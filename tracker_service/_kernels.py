@@ -62,6 +62,10 @@ def greedy_prune_kernel(q: NDArray[np.float32], cos_half: float,
     return kept[:nk].copy(), cover
 
 
+#: "No previous row" for the run kernels: outside int16, so never a template's row.
+_NO_ROW = -(1 << 20)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _runs_sum(integral: NDArray[np.float64], data: NDArray[np.int16], r0: int, r1: int, dx: float, dy: float,
               s: float, cx: float, cy: float, outside_cost: float) -> float:
@@ -73,7 +77,7 @@ def _runs_sum(integral: NDArray[np.float64], data: NDArray[np.int16], r0: int, r
     h = integral.shape[0]
     w = integral.shape[1] - 1
     acc = 0.0
-    y_prev = -1
+    y_prev = _NO_ROW  # not -1: a template may start on row -1
     ya = 0
     yb = 0
     for r in range(r0, r1):
@@ -179,7 +183,7 @@ def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16]
         t = ids[m]
         for g in range(g_n):
             acc[g] = 0.0
-        y_prev = -1
+        y_prev = _NO_ROW
         for r in range(ptr[t], ptr[t + 1]):
             ur = np.uint64(r)
             y = data[ur, 0]
@@ -804,8 +808,9 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
         Visible fraction of each part of each template.
     hand_parts : (2,) int64
         Columns of ``visible`` of the left and right hand.
-    min_visible : float
-        A hand counts as shown where its visible fraction exceeds this.
+    min_visible : float32
+        A hand counts as shown where its visible fraction exceeds this (compared in float32, as
+        numpy compares a float32 array with a Python float).
     places : (n, G, 3) float64
         Placements ``(dx, dy, s)``.
     cx, cy, sigma, cap, hidden, cover_weight, radius : float
@@ -839,7 +844,7 @@ def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64]
                         v[q] = cy + dy + s * (points[r, q, 1] - cy)
             acc = 0.0
             for hh in range(2):
-                if not visible[r, hand_parts[hh]] > min_visible:
+                if not visible[r, hand_parts[hh]] > min_visible:  # float32 both
                     acc += hidden
                     continue
                 hu = 0.5 * (u[hands[hh, 0]] + u[hands[hh, 1]])

@@ -216,7 +216,9 @@ class LevelFeatures:
         Summed-area table of ``A`` (``sat[y, x] = sum(A[:y, :x])``), only where ``A`` is
         integer-valued (XOR: every rectangle's sum is exact, so the distance kernel reads a run's
         rows in four lookups and gets the same number; see
-        :func:`tracker_service._kernels.eval_runs_sat_kernel`). None for cwXOR / nwXOR.
+        :func:`tracker_service._kernels.eval_rects_sat_kernel`). None for cwXOR / nwXOR. Made
+        from the same ``A`` as ``integral`` by :func:`preprocess`; a copy that changes one must
+        change (or drop) the other.
     """
 
     integral: NDArray[np.float64]

@@ -79,7 +79,8 @@ class RunSet:
     ----------
     data : (sum R_i, 3) int16
     ptr : (T + 1,) int64
-        Runs of template ``i`` are ``data[ptr[i]:ptr[i + 1]]``.
+        Runs of template ``i`` are ``data[ptr[i]:ptr[i + 1]]``. Not to be changed after
+        construction: :meth:`rectangles` caches what it derives from them.
     """
 
     def __init__(self, runs: list[NDArray[np.int16]] | None = None, *, data: NDArray[np.int16] | None = None,
@@ -140,11 +141,24 @@ def run_rectangles(data: NDArray[np.int16], ptr: NDArray[np.int64]) -> tuple[NDA
     if d.ndim != 2 or d.shape[1] != 3 or p.ndim != 1 or len(p) < 1 or p[0] != 0 or p[-1] != len(d) \
             or np.any(np.diff(p) < 0):
         raise ValueError(f"runs must be (R, 3) with a pointer array ending at R, got {d.shape} and {p.shape}")
+    if len(d) and (int(d[:, 0].min()) < 0 or int(d[:, 0].max()) >= np.iinfo(np.int16).max):
+        raise ValueError("run rows must be in [0, 32767) (a rectangle's end row is stored as int16)")
     return run_rectangles_kernel(d, p)
 
 
 def run_rectangles_reference(runs: NDArray[np.int16]) -> NDArray[np.int16]:
-    """:func:`run_rectangles` of one template in plain Python (the same merge, the same order)."""
+    """:func:`run_rectangles` of one template in plain Python (the same merge, the same order).
+
+    Parameters
+    ----------
+    runs : (R, 3) int16
+        ``(y, x_start, x_end)``, rows in increasing order.
+
+    Returns
+    -------
+    (Q, 4) int16
+        ``(y_start, y_end, x_start, x_end)``.
+    """
     rects: list[list[int]] = []
     prev: list[int] = []
     cur: list[int] = []
@@ -165,8 +179,10 @@ def run_rectangles_reference(runs: NDArray[np.int16]) -> NDArray[np.int16]:
 
 def _exact_sat(feat: LevelFeatures, outside_cost: float) -> NDArray[np.float64] | None:
     """The level's summed-area table where the summed-area kernel gives the row kernel's sums to
-    the bit (integer ``A``, XOR, and an integer outside cost); otherwise None."""
-    return feat.sat if feat.sat is not None and float(outside_cost).is_integer() else None
+    the bit (integer ``A``, XOR, and an integer outside cost small enough that every sum stays an
+    exact float64 integer); otherwise None."""
+    oc = float(outside_cost)
+    return feat.sat if feat.sat is not None and oc.is_integer() and abs(oc) <= 2.0**20 else None
 
 
 def evaluate_templates(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int64],

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol import fk
-from protocol.skeleton import JOINT_INDEX, PARTS, Body
+from protocol.skeleton import JOINT_INDEX, N_JOINTS, PARTS, Body
 
 from ._kernels import skin_cost_kernel
 from .camera import Camera
@@ -343,13 +343,21 @@ def skin_cost(obs: SkinObservation, joint_points: NDArray[np.float32], visible: 
     idx = np.ascontiguousarray(rows, np.int64)
     pts = np.ascontiguousarray(joint_points, np.float32)
     vis = np.ascontiguousarray(visible, np.float32)
-    if idx.ndim != 1 or places.shape[:1] != idx.shape or (len(idx) and not (0 <= idx.min() and idx.max() < len(pts)
-                                                                        and len(vis) == len(pts))):
+    hp = np.array(hand_parts, np.int64)
+    pl = np.ascontiguousarray(places, np.float64)
+    smp = np.ascontiguousarray(obs.samples, np.float64)
+    # the kernel has no bounds checks: every index it follows is checked here
+    if (pts.ndim != 3 or pts.shape[1:] != (N_JOINTS, 2) or vis.ndim != 2 or len(vis) != len(pts)
+            or hp.shape != (2,) or hp.min() < 0 or hp.max() >= vis.shape[1] or pl.ndim != 3 or pl.shape[2] != 3
+            or smp.ndim != 2 or smp.shape[1] != 2):
+        raise ValueError(f"skin_cost: joint points must be (L, {N_JOINTS}, 2), visible (L, P) with the hand "
+                         f"columns {tuple(hand_parts)}, places (n, G, 3), samples (K, 2); got {pts.shape}, "
+                         f"{vis.shape}, {pl.shape}, {smp.shape}")
+    if idx.ndim != 1 or pl.shape[:1] != idx.shape or (len(idx) and not (0 <= idx.min() and idx.max() < len(pts))):
         raise ValueError(f"rows must index the {len(pts)} templates, one per placement group "
-                         f"(rows {idx.shape}, places {places.shape}, visible {vis.shape})")
-    out = np.empty(places.shape[:2])
-    skin_cost_kernel(obs.distance, np.ascontiguousarray(obs.samples, np.float64), pts, idx, _SEGMENTS, _HANDS,
-                     vis, np.array(hand_parts, np.int64), float(min_visible), np.ascontiguousarray(places, np.float64),
+                         f"(rows {idx.shape}, places {pl.shape})")
+    out = np.empty(pl.shape[:2])
+    skin_cost_kernel(obs.distance, smp, pts, idx, _SEGMENTS, _HANDS, vis, hp, np.float32(min_visible), pl,
                      float(center[0]), float(center[1]), float(sigma_px), float(cap_px), float(hidden_cost),
                      float(cover_weight), float(radius_px), out)
     return out

@@ -782,7 +782,7 @@ def lower_column_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64], lower_f
 @njit(cache=True, nogil=True)
 def skin_cost_kernel(distance: NDArray[np.float32], samples: NDArray[np.float64], points: NDArray[np.float32],
                      rows: NDArray[np.int64], segments: NDArray[np.int64], hands: NDArray[np.int64],
-                     visible: NDArray[np.float32], hand_parts: NDArray[np.int64], min_visible: float,
+                     visible: NDArray[np.float32], hand_parts: NDArray[np.int64], min_visible: np.float32,
                      places: NDArray[np.float64], cx: float, cy: float, sigma: float, cap: float, hidden: float,
                      cover_weight: float, radius: float, out: NDArray[np.float64]) -> None:
     """Skin cue of templates at placements: hand term plus ``cover_weight`` times the cover term

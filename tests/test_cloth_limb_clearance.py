@@ -238,3 +238,9 @@ def test_limb_overlap_kernel_matches_numpy() -> None:
     assert (np.array(depths) > 0).any() and (np.array(depths) < 0).any()
     with pytest.raises(ValueError, match="backend"):
         limb_overlap(a, b, R, backend="cuda")
+    with pytest.raises(ValueError, match="limb_overlap"):  # what the kernel (no bounds checks) would misread
+        limb_overlap(a[:3], b[:3], R)
+    with pytest.raises(ValueError, match="out of range"):
+        limb_overlap(a[:3], b[:3], R[:3])
+    with pytest.raises(ValueError, match="samples"):
+        limb_overlap(a, b, R, samples=0)

@@ -148,7 +148,7 @@ def _plain_run_sums(integral: np.ndarray, runs: np.ndarray, tr: np.ndarray, cx: 
 def test_kernel_sums_are_bit_equal_to_the_plain_form(rng: np.random.Generator) -> None:
     """The kernel's shortcuts (a row's start carried from the previous row's end, the outside term
     skipped inside the image) change no bit, also for placements partly outside the image."""
-    from tracker_service._kernels import eval_runs_kernel
+    from tracker_service._kernels import eval_runs_grid_kernel
 
     s = _person(arm=0.8)
     feats = preprocess(s, "nwxor")[1]  # real-valued weights: any change of order would show
@@ -156,8 +156,10 @@ def test_kernel_sums_are_bit_equal_to_the_plain_form(rng: np.random.Generator) -
     rs = RunSet([t])
     tr = np.stack([rng.uniform(-90, 90, 60), rng.uniform(-70, 70, 60), rng.uniform(0.6, 1.5, 60)], axis=1)
     tr[0] = (0.0, 0.0, 1.0)
-    got = np.empty(len(tr))
-    eval_runs_kernel(feats.integral, rs.data, rs.ptr, np.zeros(len(tr), np.int64), tr, 80.0, 60.0, 5.0, got)
+    got = np.empty((len(tr), 1))  # one placement per template: the kernel's register path
+    eval_runs_grid_kernel(feats.integral, rs.data, rs.ptr, np.zeros(len(tr), np.int64), tr[:, None, :].copy(),
+                          80.0, 60.0, 5.0, got)
+    got = got[:, 0]
     want = _plain_run_sums(feats.integral, t, tr, 80.0, 60.0, 5.0)
     inside = (np.abs(tr[:, 0]) < 20) & (np.abs(tr[:, 1]) < 10)
     assert inside.any() and (~inside).any()  # both of the kernel's paths are exercised

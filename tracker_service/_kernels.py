@@ -70,7 +70,7 @@ _NO_ROW = -(1 << 20)
 def _runs_sum(integral: NDArray[np.float64], data: NDArray[np.int16], r0: int, r1: int, dx: float, dy: float,
               s: float, cx: float, cy: float, outside_cost: float) -> float:
     """Sum of ``A`` under runs ``data[r0:r1]`` placed at ``(dx, dy, s)`` (eq. 12; see
-    :func:`eval_runs_kernel`). Indices are passed unsigned where they are known to be inside the
+    :func:`eval_runs_grid_kernel`). Indices are passed unsigned where they are known to be inside the
     arrays (no wrap-around test), a row's first target row is the previous row's end when the rows
     are consecutive (the same expression, so the same integer) and a run inside the image skips the
     outside term (which is ``+0.0`` there): the sums are bit-identical to the plain form."""
@@ -112,16 +112,19 @@ def _runs_sum(integral: NDArray[np.float64], data: NDArray[np.int16], r0: int, r
 
 
 @njit(cache=True, nogil=True)
-def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
-                     ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
-                     outside_cost: float, out: NDArray[np.float64]) -> None:
-    """Sum of ``A`` under transformed templates from a horizontal integral image (eq. 12).
+def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
+                          ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
+                          outside_cost: float, out: NDArray[np.float64]) -> None:
+    """Sum of ``A`` under transformed templates from a horizontal integral image (eq. 12), at
+    ``G`` placements per template (the coarse levels' search grids; ``G`` = 1 elsewhere).
 
     A run ``(y, x0, x1)`` placed at ``(dx, dy, s)`` covers rows
     ``[floor(cy + dy + s (y - cy) + 0.5), floor(cy + dy + s (y + 1 - cy) + 0.5))`` and columns
     ``[floor(cx + dx + s (x0 - cx) + 0.5), floor(cx + dx + s (x1 - cx) + 0.5))``; each covered row
     adds ``integral[row, right] - integral[row, left]``, and each template pixel outside the image
-    ``outside_cost``.
+    ``outside_cost``. With ``G`` = 1 each sum is :func:`_runs_sum`; with a grid, each template's
+    runs are read once and every run is placed at all ``G`` placements (a row's target rows once
+    per placement), with :func:`_runs_sum`'s shortcuts: the same sums to the bit.
 
     Parameters
     ----------
@@ -131,41 +134,16 @@ def eval_runs_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr
         Runs ``(y, x_start, x_end)`` of all templates.
     ptr : (T + 1,) int64
         Template ``i`` owns ``data[ptr[i]:ptr[i + 1]]``.
-    ids : (M,) int64
-        Template of each evaluation.
-    transforms : (M, 3) float64
+    ids : (n,) int64
+        Template of each group.
+    transforms : (n, G, 3) float64
         ``(dx, dy, s)`` of each evaluation.
     cx, cy : float
         Scaling centre.
     outside_cost : float
         Cost per template pixel outside the image.
-    out : (M,) float64
-        Written with the sums (without the constant ``B`` and the ``1/|w|`` factor).
-    """
-    for m in range(ids.shape[0]):
-        t = ids[m]
-        out[m] = _runs_sum(integral, data, ptr[t], ptr[t + 1], transforms[m, 0], transforms[m, 1],
-                           transforms[m, 2], cx, cy, outside_cost)
-
-
-@njit(cache=True, nogil=True)
-def eval_runs_grid_kernel(integral: NDArray[np.float64], data: NDArray[np.int16], ptr: NDArray[np.int64],
-                          ids: NDArray[np.int64], transforms: NDArray[np.float64], cx: float, cy: float,
-                          outside_cost: float, out: NDArray[np.float64]) -> None:
-    """:func:`eval_runs_kernel` for a grid of ``G`` placements per template (the coarse levels'
-    search grids). Bit-identical sums: with ``G`` = 1 it is :func:`_runs_sum`; with a grid, each
-    template's runs are read once and every run is placed at all ``G`` placements (a row's target
-    rows once per placement), with :func:`_runs_sum`'s shortcuts.
-
-    Parameters
-    ----------
-    ids : (n,) int64
-        Template of each group.
-    transforms : (n, G, 3) float64
-        ``(dx, dy, s)`` of each evaluation.
     out : (n, G) float64
-        Written with the sums.
-    Other parameters as :func:`eval_runs_kernel`.
+        Written with the sums (without the constant ``B`` and the ``1/|w|`` factor).
     """
     g_n = transforms.shape[1]
     if g_n == 1:  # one accumulator in a register
@@ -354,7 +332,7 @@ def eval_rects_sat_kernel(sat: NDArray[np.float64], rects: NDArray[np.int16], pt
     ids : (n,) int64
     transforms : (n, G, 3) float64
     out : (n, G) float64
-    Other parameters as :func:`eval_runs_kernel`.
+    Other parameters as :func:`eval_runs_grid_kernel`.
     """
     h = sat.shape[0] - 1
     w = sat.shape[1] - 1

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._kernels import eval_rects_sat_kernel, eval_runs_grid_kernel, eval_runs_kernel, run_rectangles_kernel
+from ._kernels import eval_rects_sat_kernel, eval_runs_grid_kernel, run_rectangles_kernel
 from .features import Distance, LevelFeatures, core_weight
 
 __all__ = [
@@ -210,20 +210,8 @@ def evaluate_templates(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int6
     (M,) float64
         Distances ``d(S, T)``.
     """
-    oc = feat.shape[1] / 16.0 if outside_cost is None else float(outside_cost)
-    tr = np.ascontiguousarray(transforms, np.float64)
-    idx = np.ascontiguousarray(ids, np.int64)
-    out = np.empty(len(ids))
-    if (sat := _exact_sat(feat, oc)) is not None:
-        rects, rptr = runset.rectangles()
-        eval_rects_sat_kernel(sat, rects, rptr, idx, tr.reshape(-1, 1, 3), float(center[0]), float(center[1]), oc,
-                              out.reshape(-1, 1))
-    else:
-        eval_runs_kernel(feat.integral, runset.data, runset.ptr, idx, tr, float(center[0]), float(center[1]), oc,
-                         out)
-    out += feat.b
-    out /= feat.window_area
-    return out
+    tr = np.asarray(transforms, np.float64).reshape(-1, 1, 3)  # one placement per template
+    return evaluate_template_grid(feat, runset, ids, tr, center, outside_cost)[:, 0]
 
 
 def evaluate_template_grid(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.int64],

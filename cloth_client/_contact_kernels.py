@@ -472,6 +472,10 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: ND
         Axis fractions.
     out : (L,) float64
     """
+    for ix in (limbs, trunk):  # indices are checked here, where it costs nothing (no bounds checks below)
+        for i in range(ix.shape[0]):
+            if ix[i] < 0 or ix[i] >= a.shape[0]:
+                raise ValueError("limb_overlap: a capsule index is out of range")
     geo = np.empty((a.shape[0], _GEO_COLS))
     capsule_geometry(a, b, radii, 0.0, geo)
     for li in range(limbs.shape[0]):

@@ -82,10 +82,15 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
     if samples < 1:
         raise ValueError(f"samples must be >= 1, got {samples}")
     if backend == "numba":
-        res = np.empty(len(limbs))
-        K.limb_overlap(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
-                       np.ascontiguousarray(radii, dtype=np.float64), np.ascontiguousarray(limbs, dtype=np.int64),
-                       np.ascontiguousarray(trunk, dtype=np.int64), np.linspace(0.0, 1.0, samples), res)
+        a64, b64 = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
+        r64 = np.ascontiguousarray(radii, dtype=np.float64)
+        li, ti = np.ascontiguousarray(limbs, dtype=np.int64), np.ascontiguousarray(trunk, dtype=np.int64)
+        n = a64.shape[0] if a64.ndim == 2 else -1
+        if a64.shape != (n, 3) or b64.shape != (n, 3) or r64.shape != (n, 2) or li.ndim != 1 or ti.ndim != 1:
+            raise ValueError(f"limb_overlap: a, b must be (C, 3), radii (C, 2); got {a64.shape}, {b64.shape}, "
+                             f"{r64.shape}")  # the kernel checks the capsule indices against C
+        res = np.empty(len(li))
+        K.limb_overlap(a64, b64, r64, li, ti, np.linspace(0.0, 1.0, samples), res)
         return res
     depth, _ = _axis_depth(a[None], b[None], radii, limbs, trunk, np.linspace(0.0, 1.0, samples))
     out: F64 = depth[0].max(axis=1)

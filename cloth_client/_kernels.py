@@ -42,6 +42,7 @@ from ._contact_kernels import (
     jit_kernel,
     penetration,
     pinch_margin,
+    release_straddles,
     round_cone,
     round_cone_geo,
 )
@@ -468,7 +469,7 @@ def simulate_substeps(
     x: F64, v: F64, inv_mass: F64, springs: I64, rest: F64, k: F64, kd: F64, tris: I64,
     drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
     lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
-    lim_sweeps: int, final_sweeps: int, final_rounds: int, extra_rounds: int, extra_trigger2: float,
+    lim_sweeps: int, final_sweeps: int, final_rounds: int, extra_rounds: int, extra_trigger2: float, straddles: bool,
     anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
     max_stretch: float, max_compression: float,
     pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
@@ -481,7 +482,8 @@ def simulate_substeps(
     ``pin_keys (K+1, P, 3)`` and ``cap_a, cap_b (K+1, C, 3)`` are sampled evenly over the step. After
     the ``final_rounds``, up to ``extra_rounds`` more run while the largest ``(l / lim_hi)**2`` of the
     structural springs exceeds ``extra_trigger2`` (the caller passes ``extra_rounds = 0`` when
-    ``final_rounds`` is 0).
+    ``final_rounds`` is 0), each first lifting straddled springs off the limb between their
+    particles when ``straddles`` (:func:`release_straddles`).
     """
     n = x.shape[0]
     dt = dt_total / n_sub
@@ -540,6 +542,8 @@ def simulate_substeps(
             for i in range(n):
                 for d in range(3):
                     f[i, d] = x[i, d]
+            if straddles and _r >= rounds:  # a limb between two particles of a stretched spring: lift it off
+                release_straddles(x, inv_mass, lim_springs, lim_hi, extra_trigger2, a1, b1, radii, margin)
             for _sweep in range(final_sweeps):
                 line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
                 line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)

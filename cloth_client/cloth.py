@@ -11,7 +11,9 @@ One call of :func:`step` advances the cloth by ``dt`` (one received frame) in ``
    (:mod:`cloth_client.collision`), ``limit_iterations`` times; then ``final_rounds`` rounds of
    *[line solves, Gauss-Seidel sweep, collision]* (Provot's order: the strain limit, then the
    body, has the last word), and up to ``extra_rounds`` more while a structural spring is still
-   stretched beyond ``extra_above``, so every substep ends outside the body wherever it leaves room; the
+   stretched beyond ``extra_above`` (each first lifts a stretched spring with a limb between its
+   two particles off that limb: ``release_straddles``), so every substep ends outside the body
+   wherever it leaves room; the
    strain passes are contact-aware throughout (a particle touching the body only slides along the
    surfaces the last collision pass found);
    velocities follow the corrected positions;
@@ -92,9 +94,14 @@ class ClothParams:
     extra_rounds : int
         Up to this many more final rounds in a substep while any structural spring is stretched
         beyond ``extra_above`` after the last one (a solver that has not converged, e.g. after a
-        jerk); none when ``final_rounds`` is 0.
+        jerk); none when ``final_rounds`` is 0. Each starts by lifting stretched springs that
+        straddle a body part off it (``_contact_kernels.release_straddles``). 32 since session 17
+        (12 before).
     extra_above : float
         Strain that triggers the extra rounds (0.08 = 8 %, under the 10 % quality target).
+    release_straddles : bool
+        The extra rounds first lift stretched springs with a limb between their two particles off
+        that limb (``_contact_kernels.release_straddles``; session 17). False: the session-16 rounds.
     tethers : bool
         Long-range attachments on.
     friction : float
@@ -130,8 +137,9 @@ class ClothParams:
     limit_sweeps: int = 1
     final_sweeps: int = 2
     final_rounds: int = 2
-    extra_rounds: int = 12
+    extra_rounds: int = 32
     extra_above: float = 0.08
+    release_straddles: bool = True
     tethers: bool = True
     friction: float = 0.2
     margin: float = 0.006
@@ -375,7 +383,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
             np.asarray(p.gravity, dtype=np.float64), p.mass_damping + extra_damping,
             model.lim_springs, model.lim_lo, model.lim_hi, p.limit_iterations, p.limit_sweeps, p.final_sweeps,
             p.final_rounds, p.extra_rounds if p.final_rounds > 0 else 0,
-            ((1.0 + p.extra_above) / (1.0 + p.max_stretch)) ** 2,
+            ((1.0 + p.extra_above) / (1.0 + p.max_stretch)) ** 2, p.release_straddles,
             np.ascontiguousarray(anchor, dtype=np.int64), np.ascontiguousarray(reach, dtype=np.float64),
             model.lines_v, model.rest_v, model.lines_h, model.rest_h, model.lines_s, model.rest_s,
             p.max_stretch, p.max_compression,

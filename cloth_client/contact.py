@@ -36,8 +36,19 @@ from numpy.typing import NDArray
 
 from .collision import round_cone_np
 
-__all__ = ["COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS", "PINCH_DEPTH", "broad_phase_np",
-           "collide_np", "pinch_margin_np"]
+__all__ = [
+    "COLLISION_PASSES",
+    "CREASE_COS",
+    "HIT_TOLERANCE",
+    "PINCH_COS",
+    "PINCH_DEPTH",
+    "STRADDLE_DEPTH",
+    "STRADDLE_SAMPLES",
+    "broad_phase_np",
+    "collide_np",
+    "pinch_margin_np",
+    "release_straddles_np",
+]
 
 F64 = NDArray[np.float64]
 _TINY = 1e-12
@@ -54,6 +65,10 @@ CREASE_COS = 0.0
 PINCH_DEPTH = 0.009
 #: A particle closer than the clearance by less than this (metres) is on the surface, not in contact.
 HIT_TOLERANCE = 1e-9
+#: A stretched spring whose chord passes deeper than this (metres) into a capsule straddles it.
+STRADDLE_DEPTH = 0.0005
+#: Interior samples of a spring's chord (at ``k / (n + 1)``).
+STRADDLE_SAMPLES = 9
 
 
 def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:
@@ -238,3 +253,58 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
     floor = np.where(cos < PINCH_COS, -PINCH_DEPTH, 0.0)
     out: F64 = np.where(crease, np.minimum(np.maximum(0.5 * (d1 + d2), floor), margin), margin)
     return out
+
+
+def release_straddles_np(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: F64, trigger2: float, a: F64,
+                         b: F64, radii: F64, margin: float) -> int:
+    """Lift stretched springs that straddle a body part off it, in place (reference of
+    ``_contact_kernels.release_straddles``, which documents the rule).
+
+    Parameters
+    ----------
+    x : (N, 3) float64
+        Positions, moved in place.
+    inv_mass : (N,) float64
+    springs : (L, 2) int64
+        Springs to test, visited in order.
+    hi : (L,) float64
+        Their upper length bounds; a spring is tested when ``(l / hi)**2 > trigger2``.
+    trigger2 : float
+    a, b : (C, 3) float64
+        Capsule ends.
+    radii : (C, 2) float64
+    margin : float
+        Clearance the chord is lifted to (the cloth's half thickness).
+
+    Returns
+    -------
+    int
+        Springs released.
+    """
+    ts = np.arange(1, STRADDLE_SAMPLES + 1) / (STRADDLE_SAMPLES + 1)
+    released = 0
+    if not len(a):
+        return 0
+    for s in range(len(springs)):
+        i, j = int(springs[s, 0]), int(springs[s, 1])
+        d = x[j] - x[i]
+        if not float(d @ d) > trigger2 * hi[s] * hi[s]:
+            continue
+        wi, wj = float(inv_mass[i]), float(inv_mass[j])
+        if wi + wj <= 0.0:
+            continue
+        dist, normal, _ = round_cone_np(x[i] + ts[:, None] * d, a, b, radii[:, 0], radii[:, 1])  # (S, C)
+        flat = dist.T.ravel()  # capsule-major, as the kernel scans: the first deepest sample wins
+        m = int(np.argmin(flat))
+        if not flat[m] < -STRADDLE_DEPTH:
+            continue
+        c, k = divmod(m, STRADDLE_SAMPLES)
+        ends, _, _ = round_cone_np(x[[i, j]], a[c:c + 1], b[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+        if (ends < 0.0).any():
+            continue  # an end inside: collision moves that particle out
+        t = ts[k]
+        push = (margin - flat[m]) / (wi * (1.0 - t) ** 2 + wj * t * t)
+        x[i] += wi * (1.0 - t) * push * normal[k, c]
+        x[j] += wj * t * push * normal[k, c]
+        released += 1
+    return released

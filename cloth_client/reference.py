@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from ._kernels import SLIDE_FLOOR
 from .collision import CapsuleTrack, interpolate_keys
-from .contact import collide_np
+from .contact import collide_np, release_straddles_np
 
 if TYPE_CHECKING:
     from .cloth import ClothModel
@@ -245,6 +245,9 @@ def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, 
             if r >= rounds and worst_stretch2_np(x, model.lim_springs, model.lim_hi) <= trigger2:
                 break
             before = x.copy()  # contact-aware: cloth on the body slides over it, not into it
+            if p.release_straddles and r >= rounds:  # a limb between two particles of a stretched spring
+                release_straddles_np(x, inv_mass, model.lim_springs, model.lim_hi, trigger2, a1, b1, track.radii,
+                                     p.margin)
             _line_pass(x, model, inv_mass, contact, p.final_sweeps)
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
                             1 if p.final_sweeps > 0 else 0, contact)

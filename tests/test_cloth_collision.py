@@ -10,7 +10,14 @@ from cloth_client import _kernels as K
 from cloth_client.avatar import capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
-from cloth_client.contact import PINCH_COS, PINCH_DEPTH, broad_phase_np, collide_np, pinch_margin_np
+from cloth_client.contact import (
+    PINCH_COS,
+    PINCH_DEPTH,
+    broad_phase_np,
+    collide_np,
+    pinch_margin_np,
+    release_straddles_np,
+)
 from cloth_client.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
@@ -435,3 +442,61 @@ def test_skirt_hip_ease_widens_the_hips_but_stays_inside_the_arms() -> None:
     a, b = capsule_endpoints(body, standing_pose(body))
     d, _, _ = round_cone_np(g1.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
     assert d.min() > 0.006  # the hands still hang outside the cloth
+
+
+def _straddle_scene(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+    """``n`` stretched springs, each across one of two capsules (a limb between its two particles),
+    besides slack springs and stretched springs clear of the body."""
+    a = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, 0.0]])
+    b = np.array([[0.0, 0.4, 0.0], [0.4, 0.5, 0.0]])
+    radii = np.array([[0.05, 0.04], [0.04, 0.04]])
+    pts, springs, hi = [], [], []
+    for k in range(n):
+        kind = k % 4
+        c = k % 2
+        t = rng.uniform(0.2, 0.8)
+        axis_pt = a[c] + t * (b[c] - a[c])
+        u = (b[c] - a[c]) / np.linalg.norm(b[c] - a[c])
+        side = np.cross(u, [0.0, 0.0, 1.0])
+        side /= np.linalg.norm(side)
+        off = rng.uniform(-0.02, 0.02) * np.array([0.0, 0.0, 1.0])  # the chord passes off the axis
+        if kind == 3:  # a stretched spring beside the limb, clear of it
+            off = np.array([0.0, 0.0, 0.09])
+        p0, p1 = axis_pt - 0.052 * side + off, axis_pt + 0.052 * side + off
+        length = np.linalg.norm(p1 - p0)
+        pts += [p0, p1]
+        springs.append([2 * k, 2 * k + 1])
+        hi.append(length / (1.5 if kind != 2 else 0.9))  # kind 2: slack, never tested
+    x = np.array(pts)
+    inv_mass = np.ones(len(x))
+    inv_mass[0] = 0.0  # a pinned end does not move: its partner takes the whole lift
+    return x, inv_mass, np.array(springs, np.int64), np.array(hi), a, b, radii
+
+
+def test_straddled_spring_is_lifted_off_the_limb(rng: np.random.Generator) -> None:
+    """A stretched spring with a limb between its particles is moved to one side of the limb (both
+    backends agree), so its chord clears the capsule by the margin; slack springs, springs clear of
+    the body and pins are left alone."""
+    x, inv_mass, springs, hi, a, b, radii = _straddle_scene(rng, 24)
+    margin = 0.006
+    out = {}
+    for backend in ("numba", "numpy"):
+        xb = x.copy()
+        fn = K.release_straddles if backend == "numba" else release_straddles_np
+        out[backend] = (fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, margin), xb)
+    (n, got), (n_ref, ref) = out["numba"], out["numpy"]
+    assert n == n_ref == 12  # kinds 0 and 1 of 24
+    np.testing.assert_allclose(got, ref, atol=1e-12, rtol=0)
+    assert got[0].tolist() == x[0].tolist()  # the pin
+    ts = np.linspace(0.0, 1.0, 41)[:, None]
+    for k, (i, j) in enumerate(springs):
+        moved = not np.allclose(got[[i, j]], x[[i, j]])
+        assert moved == (k % 4 in (0, 1)), k
+        if moved:
+            depth = [round_cone_np(c[i] * (1 - ts) + c[j] * ts, a, b, radii[:, 0], radii[:, 1])[0].min()
+                     for c in (x, got)]
+            if k == 0:  # one end pinned: the chord turns about it, lifted at the deepest sample only
+                assert depth[0] < -0.02 and depth[1] > 0.2 * depth[0]
+            else:  # a symmetric straddle: the chord is carried clear, to the margin
+                assert depth[0] < -0.01 and abs(depth[1] - margin) < 1e-3
+

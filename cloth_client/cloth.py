@@ -11,9 +11,9 @@ One call of :func:`step` advances the cloth by ``dt`` (one received frame) in ``
    (:mod:`cloth_client.collision`), ``limit_iterations`` times; then ``final_rounds`` rounds of
    *[line solves, Gauss-Seidel sweep, collision]* (Provot's order: the strain limit, then the
    body, has the last word), and up to ``extra_rounds`` more while a structural spring is still
-   stretched beyond ``extra_above`` (each first lifts a stretched spring with a limb between its
-   two particles off that limb: ``release_straddles``), so every substep ends outside the body
-   wherever it leaves room; the
+   stretched beyond ``extra_above`` (with ``release_straddles``, each first lifts a stretched
+   spring with a limb between its two particles off that limb), so every substep ends outside the
+   body wherever it leaves room; the
    strain passes are contact-aware throughout (a particle touching the body only slides along the
    surfaces the last collision pass found);
    velocities follow the corrected positions;
@@ -94,14 +94,16 @@ class ClothParams:
     extra_rounds : int
         Up to this many more final rounds in a substep while any structural spring is stretched
         beyond ``extra_above`` after the last one (a solver that has not converged, e.g. after a
-        jerk); none when ``final_rounds`` is 0. Each starts by lifting stretched springs that
-        straddle a body part off it (``_contact_kernels.release_straddles``). 32 since session 17
-        (12 before).
+        jerk); none when ``final_rounds`` is 0. With ``release_straddles`` each starts by lifting
+        stretched springs that straddle a body part off it.
     extra_above : float
         Strain that triggers the extra rounds (0.08 = 8 %, under the 10 % quality target).
     release_straddles : bool
         The extra rounds first lift stretched springs with a limb between their two particles off
-        that limb (``_contact_kernels.release_straddles``; session 17). False: the session-16 rounds.
+        that limb (``_contact_kernels.release_straddles``; session 17). Off by default: with it
+        (and 32 extra rounds) the sweep over the 252 recordings gains 2 takes per garment, but the
+        repeated lifts pump the skirt off a forearm lying in it (the synthetic forearm swing
+        through the hips at 30 Hz: 7.2 -> 174 %; docs/CLOTH.md, session 17).
     tethers : bool
         Long-range attachments on.
     friction : float
@@ -137,9 +139,9 @@ class ClothParams:
     limit_sweeps: int = 1
     final_sweeps: int = 2
     final_rounds: int = 2
-    extra_rounds: int = 32
+    extra_rounds: int = 12
     extra_above: float = 0.08
-    release_straddles: bool = True
+    release_straddles: bool = False
     tethers: bool = True
     friction: float = 0.2
     margin: float = 0.006

@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ._contact_kernels import STRADDLE_DEPTH, STRADDLE_SAMPLES  # one rule, two backends
 from .collision import round_cone_np
 
 __all__ = [
@@ -65,10 +66,6 @@ CREASE_COS = 0.0
 PINCH_DEPTH = 0.009
 #: A particle closer than the clearance by less than this (metres) is on the surface, not in contact.
 HIT_TOLERANCE = 1e-9
-#: A stretched spring whose chord passes deeper than this (metres) into a capsule straddles it.
-STRADDLE_DEPTH = 0.0005
-#: Interior samples of a spring's chord (at ``k / (n + 1)``).
-STRADDLE_SAMPLES = 9
 
 
 def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:

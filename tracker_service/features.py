@@ -251,10 +251,20 @@ def preprocess(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: flo
             integral = np.empty((h, w + 1))
             sat = np.empty((h + 1, w + 1))
             count, y0, y1, x0, x1 = xor_level_kernel(np.ascontiguousarray(lvl), integral, sat)
-            area = float(((y1 - y0 + 1) * 1.5) * ((x1 - x0 + 1) * 1.5)) if count else float(lvl.size)
-            out.append(LevelFeatures(integral, float(count), max(area, 1.0), (h, w), sat))
+            area = _window_area((y0, y1, x0, x1) if count else None, lvl.size)
+            out.append(LevelFeatures(integral, float(count), area, (h, w), sat))
         return out
     return preprocess_reference(mask, distance, alpha, beta, sizes)
+
+
+def _window_area(box: tuple[int, int, int, int] | None, size: int) -> float:
+    """Area ``|w|`` of the matching window: the silhouette's bounding box ``(y0, y1, x0, x1)``
+    (inclusive) grown 1.5x each way; the whole level (``size`` pixels) when the silhouette is empty
+    (``box`` None); at least 1."""
+    if box is None:
+        return max(float(size), 1.0)
+    y0, y1, x0, x1 = box
+    return max(float(((y1 - y0 + 1) * 1.5) * ((x1 - x0 + 1) * 1.5)), 1.0)
 
 
 def preprocess_reference(mask: NDArray[np.bool_], distance: Distance = "nwxor", alpha: float = 5.0,
@@ -269,15 +279,11 @@ def preprocess_reference(mask: NDArray[np.bool_], distance: Distance = "nwxor", 
         integral = np.zeros((a.shape[0], a.shape[1] + 1))
         np.cumsum(a, axis=1, dtype=np.float64, out=integral[:, 1:])
         ys, xs = np.nonzero(lvl)
-        if len(ys):
-            hh = (ys.max() - ys.min() + 1) * 1.5
-            ww = (xs.max() - xs.min() + 1) * 1.5
-            area = float(hh * ww)
-        else:
-            area = float(lvl.size)
+        area = _window_area((int(ys.min()), int(ys.max()), int(xs.min()), int(xs.max())) if len(ys) else None,
+                            lvl.size)
         sat = None
         if distance == "xor":
             sat = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
             np.cumsum(integral, axis=0, out=sat[1:])
-        out.append(LevelFeatures(integral, b, max(area, 1.0), (lvl.shape[0], lvl.shape[1]), sat))
+        out.append(LevelFeatures(integral, b, area, (lvl.shape[0], lvl.shape[1]), sat))
     return out

@@ -22,6 +22,7 @@ Speed figures
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -65,7 +66,7 @@ def _substeps_per_s(side: int, params: ClothParams, seconds: float = 3.0) -> flo
     return done / (time.perf_counter() - t0)
 
 
-def speed(rt_particles: tuple[int, ...] = (2000, 5000)) -> dict[str, Any]:
+def speed(rt_particles: tuple[int, ...] = (2000, 5000), overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Substeps/s on free sheets and real-time factors with collision (garments of ``rt_particles``)."""
     bare = ClothParams(limit_iterations=0, final_sweeps=0, final_rounds=0, air_density=0.0, floor=None, tethers=False)
     full = ClothParams(floor=None)
@@ -80,7 +81,8 @@ def speed(rt_particles: tuple[int, ...] = (2000, 5000)) -> dict[str, Any]:
     out["realtime"] = []
     for garment in ("cape", "skirt"):
         for n in rt_particles:
-            r = simulate_motion(motion, garment, particles=n, max_frames=1200)  # 20 s
+            r = simulate_motion(motion, garment, particles=n, max_frames=1200,  # 20 s
+                                params=ClothParams(**(overrides or {})))
             row = {k: r[k] for k in ("garment", "particles", "realtime_factor", "steps_per_s", "sim_time_s",
                                      "max_penetration_mm", "max_strain")}
             out["realtime"].append(row)
@@ -88,24 +90,54 @@ def speed(rt_particles: tuple[int, ...] = (2000, 5000)) -> dict[str, Any]:
     return out
 
 
-def _one(job: tuple[str, str, int]) -> dict[str, Any]:
-    rel, garment, particles = job
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """``["key=value", ...]`` -> ``ClothParams`` overrides, each value parsed as its field's type.
+
+    Raises
+    ------
+    SystemExit
+        On an unknown field or a value of the wrong type.
+    """
+    fields = {f.name: f for f in dataclasses.fields(ClothParams)}
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or key not in fields:
+            raise SystemExit(f"--param {item!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}")
+        current = getattr(ClothParams(), key)
+        try:
+            if isinstance(current, bool):
+                if raw not in ("True", "False", "1", "0"):
+                    raise ValueError(raw)
+                out[key] = raw in ("True", "1")
+            elif isinstance(current, (int, float)):
+                out[key] = type(current)(raw)
+            else:
+                raise ValueError(f"{key} cannot be set from the command line")
+        except ValueError as exc:
+            raise SystemExit(f"--param {item!r}: {exc}") from None
+    return out
+
+
+def _one(job: tuple[str, str, int, dict[str, Any]]) -> dict[str, Any]:
+    rel, garment, particles, overrides = job
     try:
         motion = load_motion(mocap_root() / rel)
-        r = simulate_motion(motion, garment, particles=particles)
+        r = simulate_motion(motion, garment, particles=particles, params=ClothParams(**overrides))
         r["recording"] = rel
         return r
     except Exception as exc:  # report and keep sweeping
         return {"recording": rel, "garment": garment, "error": f"{type(exc).__name__}: {exc}"}
 
 
-def sweep(garments: list[str], particles: int, jobs: int, limit: int | None) -> dict[str, Any]:
+def sweep(garments: list[str], particles: int, jobs: int, limit: int | None,
+          overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Every recording of the shared index, each garment: NaN, penetration, strain."""
     entries = index_entries()
     entries.sort(key=lambda e: -e.frames / e.fps)  # longest first for better load balance
     if limit is not None:
         entries = entries[:limit]
-    work = [(e.path, g, particles) for g in garments for e in entries]
+    work = [(e.path, g, particles, dict(overrides or {})) for g in garments for e in entries]
     results: list[dict[str, Any]] = []
     with get_context("spawn").Pool(jobs) as pool:
         for i, r in enumerate(pool.imap_unordered(_one, work), 1):
@@ -148,16 +180,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-sweep", action="store_true")
     ap.add_argument("--rt-particles", default="2000,5000", help="garment sizes for the real-time factor")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_cloth" / "results.json"))
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a ClothParams field in the real-time runs and the sweep (repeatable), "
+                         "e.g. extra_rounds=12")
     args = ap.parse_args(argv)
+    overrides = parse_overrides(args.param)
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                        "processor": platform.processor() or platform.machine(),
-                                       "host_probe_s": host_probe()}}
+                                       "host_probe_s": host_probe()},
+                           "params": overrides}
     if not args.skip_speed:
         print("speed:", flush=True)
-        res["speed"] = speed(tuple(int(n) for n in args.rt_particles.split(",")))
+        res["speed"] = speed(tuple(int(n) for n in args.rt_particles.split(",")), overrides)
     if not args.skip_sweep:
         print("sweep:", flush=True)
-        res["sweep"] = sweep(args.garments.split(","), args.particles, args.jobs, args.limit)
+        res["sweep"] = sweep(args.garments.split(","), args.particles, args.jobs, args.limit, overrides)
         print(json.dumps(res["sweep"]["summary"], indent=2))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

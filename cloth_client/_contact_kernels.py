@@ -14,9 +14,10 @@ from numba import njit
 from numpy.typing import NDArray
 
 __all__ = ["ALL_CAPSULES", "BROAD_SLACK", "CARRY_JUMP", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
-           "PINCH_DEPTH", "RELAX_RATE", "RELAX_STEPS", "STRADDLE_DEPTH", "STRADDLE_SAMPLES", "broad_phase",
-           "capsule_geometry", "clear_limbs", "collide", "covered", "inline_kernel", "jit_kernel", "limb_overlap",
-           "penetration", "pinch_margin", "push_out", "release_straddles", "round_cone", "round_cone_geo"]
+           "PINCH_DEPTH", "RELAX_RATE", "RELAX_STEPS", "SEAM_MIN_COS", "SEAM_SHARED_PASSES", "STRADDLE_DEPTH",
+           "STRADDLE_SAMPLES", "broad_phase", "capsule_geometry", "clear_limbs", "collide", "covered", "inline_kernel",
+           "jit_kernel", "limb_overlap", "penetration", "pinch_margin", "push_out", "release_straddles", "round_cone",
+           "round_cone_geo", "slide_seam"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -423,14 +424,17 @@ STRADDLE_SAMPLES = 9
 
 @_jit
 def release_straddles(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: F64, trigger2: float, a: F64, b: F64,
-                      radii: F64, margin: float) -> int:  # pragma: no cover
+                      radii: F64, margin: float, opposed: float) -> int:  # pragma: no cover
     """Lift springs that straddle a body part off it (reference: ``contact.release_straddles_np``).
 
     A spring ``s`` stretched beyond ``(l / hi[s])**2 > trigger2`` whose chord passes more than
-    :data:`STRADDLE_DEPTH` inside a capsule, with both its ends outside that capsule, has a limb
-    between its two particles: particle-vs-capsule collision pushes each end out to its own side and
-    the strain limit cannot pull them together through the limb (the limb slipped between two
-    particles: a shin between two rows of a skirt's hem, an arm up through a cape). The chord is
+    :data:`STRADDLE_DEPTH` inside a capsule, with both its ends outside that capsule and the
+    capsule's outward normals at the two ends pointing apart (``n_i . n_j < opposed``), has a limb
+    between its two particles: particle-vs-capsule collision pushes each end out to its own side
+    and the strain limit cannot pull them together through the limb (the limb slipped between two
+    particles: a shin between two rows of a skirt's hem, an arm up through a cape). Cloth draped
+    round a limb also has its chord inside it, but with both ends on the same side; lifting that
+    pumped a skirt off a forearm (session 17), hence the side test (session 18). The chord is
     moved out of the capsule along the outward normal ``n`` at its deepest sample ``t`` to the
     cloth margin: push ``p = margin - d(t)`` split between the ends by the least-norm rule
     ``w_i (1 - t) p n / D`` and ``w_j t p n / D``, ``D = w_i (1 - t)**2 + w_j t**2`` (``w`` the
@@ -462,9 +466,12 @@ def release_straddles(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: F64
                     deep, cap, bt, bnx, bny, bnz = d, c, t, nx, ny, nz
         if cap < 0:
             continue
-        if (round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo, cap)[0] < 0.0
-                or round_cone_geo(x[j, 0], x[j, 1], x[j, 2], geo, cap)[0] < 0.0):
+        di, inx, iny, inz, _ = round_cone_geo(x[i, 0], x[i, 1], x[i, 2], geo, cap)
+        dj, jnx, jny, jnz, _ = round_cone_geo(x[j, 0], x[j, 1], x[j, 2], geo, cap)
+        if di < 0.0 or dj < 0.0:
             continue  # an end inside: collision moves that particle out
+        if not inx * jnx + iny * jny + inz * jnz < opposed:
+            continue  # both ends on the same side of the limb: cloth draped round it, not a limb between them
         den = wi * (1.0 - bt) ** 2 + wj * bt * bt
         push = (margin - deep) / den
         fi, fj = wi * (1.0 - bt) * push, wj * bt * push
@@ -595,6 +602,107 @@ def push_out(points: F64, a: F64, b: F64, radii: F64, clearance: float, passes: 
                     points[k, p, 0] = px + depth * bx
                     points[k, p, 1] = py + depth * by
                     points[k, p, 2] = pz + depth * bz
+
+
+#: Passes of the shared push of a slid seam's covered pins (:func:`slide_seam`).
+SEAM_SHARED_PASSES = 3
+#: Floor of the cosine between a pin's own normal and its capsule's shared push direction: a pin on
+#: the side of the body part moves at most twice its depth along that direction.
+SEAM_MIN_COS = 0.5
+
+
+@_jit
+def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread: int,
+               wrap: bool) -> None:  # pragma: no cover
+    """Slide a seam's pins (a cape's collar) out of the body parts covering them, in place, keeping
+    the seam's length: reference ``AvatarKeys.slide_seam(..., backend="numpy")``.
+
+    Pushing each covered pin along its own normal spreads the pins under a body part round its
+    surface, and the pinned springs between them stretch (the cape's collar under a head thrown
+    back: 62 % on `dance-short`, every frame over 10 % a collar spring next to the skull). Per key:
+
+    1. each pin's nearest capsule (least signed distance, the first on a tie) and its depth
+       ``clearance - d``; the pins with a positive depth are covered;
+    2. the covered pins of each capsule move together along one direction ``u`` (the depth-weighted
+       sum of their normals, normalised), :data:`SEAM_SHARED_PASSES` times by
+       ``max(clearance - d, 0) / max(n . u, SEAM_MIN_COS)``: the covered stretch is carried, not
+       spread round the body part; then two radial projections (:func:`push_out`);
+    3. the move ``delta`` of every pin is spread along the seam with a linear fall-off over
+       ``spread`` pins, ``w(k) = max(0, 1 - k / (spread + 1))`` at ``k`` pins away (round the seam
+       when ``wrap``): pin ``i`` moves by ``w(|i - j|) delta_j`` for the ``j`` of largest
+       ``w(|i - j|) |delta_j|`` (the first on a tie), so the step between held and carried pins is
+       shared by their neighbours;
+    4. two radial projections again leave every pin at least ``clearance`` outside.
+
+    Parameters
+    ----------
+    points : (K + 1, P, 3) float64
+        Pin targets in seam order, modified in place.
+    a, b : (K + 1, C, 3) float64
+    radii : (C, 2) float64
+    clearance : float
+    spread : int
+        Fall-off length in pins (0: no spreading).
+    wrap : bool
+        The seam is closed (a waistband).
+    """
+    n_keys, n_pins, n_caps = points.shape[0], points.shape[1], a.shape[1]
+    geo = np.empty((n_caps, _GEO_COLS))
+    near = np.empty(n_pins, dtype=np.int64)
+    depth = np.empty(n_pins)
+    start = points.copy()
+    for k in range(n_keys):
+        capsule_geometry(a[k], b[k], radii, 0.0, geo)
+        for p in range(n_pins):
+            best, cb = np.inf, 0
+            for c in range(n_caps):
+                d = round_cone_geo(start[k, p, 0], start[k, p, 1], start[k, p, 2], geo, c)[0]
+                if d < best:
+                    best, cb = d, c
+            near[p], depth[p] = cb, clearance - best
+        for c in range(n_caps):
+            ux, uy, uz, any_in = 0.0, 0.0, 0.0, False
+            for p in range(n_pins):
+                if near[p] == c and depth[p] > 0.0:
+                    _d, nx, ny, nz, _t = round_cone_geo(start[k, p, 0], start[k, p, 1], start[k, p, 2], geo, c)
+                    ux += depth[p] * nx
+                    uy += depth[p] * ny
+                    uz += depth[p] * nz
+                    any_in = True
+            norm = math.sqrt(ux * ux + uy * uy + uz * uz)
+            if not any_in or not norm > 0.0:
+                continue
+            ux, uy, uz = ux / norm, uy / norm, uz / norm
+            for _ in range(SEAM_SHARED_PASSES):
+                for p in range(n_pins):
+                    if near[p] == c and depth[p] > 0.0:
+                        d, nx, ny, nz, _t = round_cone_geo(points[k, p, 0], points[k, p, 1], points[k, p, 2], geo, c)
+                        need = clearance - d
+                        if need > 0.0:
+                            step = need / max(nx * ux + ny * uy + nz * uz, SEAM_MIN_COS)
+                            points[k, p, 0] += step * ux
+                            points[k, p, 1] += step * uy
+                            points[k, p, 2] += step * uz
+    push_out(points, a, b, radii, clearance, 2)
+    if spread <= 0:
+        return
+    delta = points - start
+    mag = np.empty(n_pins)
+    for k in range(n_keys):
+        for p in range(n_pins):
+            mag[p] = math.sqrt(delta[k, p, 0] ** 2 + delta[k, p, 1] ** 2 + delta[k, p, 2] ** 2)
+        for i in range(n_pins):
+            top, jb, wb = -1.0, 0, 0.0
+            for j in range(n_pins):
+                gap = abs(i - j)
+                if wrap:
+                    gap = min(gap, n_pins - gap)
+                w = max(0.0, 1.0 - gap / (spread + 1.0))
+                if w * mag[j] > top:
+                    top, jb, wb = w * mag[j], j, w
+            for e in range(3):
+                points[k, i, e] = start[k, i, e] + wb * delta[k, jb, e]
+    push_out(points, a, b, radii, clearance, 2)
 
 
 @_inline

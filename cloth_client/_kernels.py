@@ -453,11 +453,14 @@ def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
 
 
 @_jit
-def _worst_stretch2(x: F64, springs: I64, hi: F64) -> float:  # pragma: no cover
-    """Largest ``(l / hi)**2`` over ``springs``."""
+def _worst_stretch2(x: F64, springs: I64, hi: F64, inv_mass: F64) -> float:  # pragma: no cover
+    """Largest ``(l / hi)**2`` over the ``springs`` with a free end (no round can shorten a spring
+    between two pins: a collar spread round the skull would run every extra round in vain)."""
     worst = 0.0
     for s in range(springs.shape[0]):
-        _i, _j, d0, d1, d2 = _spring_vector(x, springs, s)
+        i, j, d0, d1, d2 = _spring_vector(x, springs, s)
+        if inv_mass[i] + inv_mass[j] <= 0.0:
+            continue
         r = (d0 * d0 + d1 * d1 + d2 * d2) / (hi[s] * hi[s])
         if not r <= worst:  # a NaN propagates, as in the numpy reference
             worst = r
@@ -470,6 +473,7 @@ def simulate_substeps(
     drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
     lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
     lim_sweeps: int, final_sweeps: int, final_rounds: int, extra_rounds: int, extra_trigger2: float, straddles: bool,
+    opposed: float,
     anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
     max_stretch: float, max_compression: float,
     pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
@@ -537,13 +541,13 @@ def simulate_substeps(
         # then up to extra_rounds more while a structural spring is stretched beyond the trigger
         rounds = max(final_rounds, 1)
         for _r in range(rounds + extra_rounds):
-            if _r >= rounds and _worst_stretch2(x, lim_springs, lim_hi) <= extra_trigger2:
+            if _r >= rounds and _worst_stretch2(x, lim_springs, lim_hi, inv_mass) <= extra_trigger2:
                 break
             for i in range(n):
                 for d in range(3):
                     f[i, d] = x[i, d]
             if straddles and _r >= rounds:  # a limb between two particles of a stretched spring: lift it off
-                release_straddles(x, inv_mass, lim_springs, lim_hi, extra_trigger2, a1, b1, radii, margin)
+                release_straddles(x, inv_mass, lim_springs, lim_hi, extra_trigger2, a1, b1, radii, margin, opposed)
             for _sweep in range(final_sweeps):
                 line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
                 line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)

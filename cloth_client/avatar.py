@@ -22,8 +22,10 @@ from protocol.messages import BodyInfo, body_from_body_info
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 
+from ._contact_kernels import SEAM_MIN_COS, SEAM_SHARED_PASSES
 from ._contact_kernels import covered as covered_kernel
 from ._contact_kernels import push_out as push_out_kernel
+from ._contact_kernels import slide_seam as slide_seam_kernel
 from ._kernels import interpolate_poses as interpolate_kernel
 from .collision import CapsuleTrack, check_backend, round_cone_np
 from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, clear_limbs_track, limb_overlap
@@ -191,6 +193,56 @@ class AvatarKeys:
                 inside = depth > 0
                 out[k, inside] += depth[inside, None] * n[inside, c[inside]]
         return out
+
+    def slide_seam(self, points: F64, clearance: float, spread: int = 0, wrap: bool = False,
+                   backend: str = "numba") -> F64:
+        """``points (K + 1, P, 3)``, pins in seam order, slid out of the body parts covering them:
+        each part's covered pins carried together along one direction, the move spread over
+        ``spread`` pins either side with a linear fall-off (round the seam when ``wrap``), then
+        pushed radially to ``clearance`` (``_contact_kernels.slide_seam`` documents the rule;
+        ``backend="numpy"`` runs this plain reference)."""
+        check_backend(backend)
+        if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
+            raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
+        if spread < 0:
+            raise ValueError(f"spread must be >= 0, got {spread}")
+        if backend == "numba":
+            moved = np.array(points, dtype=np.float64, order="C")
+            slide_seam_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
+                              np.ascontiguousarray(self.track.radii), float(clearance), int(spread), bool(wrap))
+            return moved
+        start = np.array(points, dtype=np.float64)
+        out = start.copy()
+        r0, r1 = self.track.radii[:, 0], self.track.radii[:, 1]
+        for k in range(len(out)):
+            a, b = self.track.a[k], self.track.b[k]
+            d, n, _t = round_cone_np(start[k], a, b, r0, r1)  # (P, C)
+            near = np.argmin(d, axis=1)
+            depth = clearance - d[np.arange(len(near)), near]
+            for c in np.unique(near[depth > 0.0]):
+                sel = (near == c) & (depth > 0.0)
+                u = (depth[sel, None] * n[sel, c]).sum(axis=0)
+                norm = float(np.linalg.norm(u))
+                if not norm > 0.0:
+                    continue
+                u /= norm
+                for _ in range(SEAM_SHARED_PASSES):
+                    dd, nn, _t = round_cone_np(out[k, sel], a[c:c + 1], b[c:c + 1], r0[c:c + 1], r1[c:c + 1])
+                    step = np.maximum(clearance - dd[:, 0], 0.0) / np.maximum(nn[:, 0] @ u, SEAM_MIN_COS)
+                    out[k, sel] += step[:, None] * u
+        out = self.push_out(out, clearance, backend="numpy")
+        if spread == 0:
+            return out
+        delta = out - start
+        idx = np.arange(start.shape[1])
+        gap = np.abs(idx[:, None] - idx[None, :])
+        if wrap:
+            gap = np.minimum(gap, len(idx) - gap)
+        w = np.maximum(0.0, 1.0 - gap / (spread + 1.0))  # (P, P)
+        for k in range(len(out)):
+            j = np.argmax(w * np.linalg.norm(delta[k], axis=1)[None, :], axis=1)
+            out[k] = start[k] + w[idx, j][:, None] * delta[k, j]
+        return self.push_out(out, clearance, backend="numpy")
 
     def covered(self, points: F64, margin: float | F64, backend: str = "numba") -> NDArray[np.bool_]:
         """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``

@@ -92,18 +92,20 @@ class ClothParams:
         Final rounds of *[contact-aware line solves, Gauss-Seidel sweep, collision]*; 0 = one
         contact-aware strain pass without collision after it (the previous scheme).
     extra_rounds : int
-        Up to this many more final rounds in a substep while any structural spring is stretched
-        beyond ``extra_above`` after the last one (a solver that has not converged, e.g. after a
+        Up to this many more final rounds in a substep while any structural spring with a free end
+        is stretched beyond ``extra_above`` after the last one (a solver that has not converged, e.g. after a
         jerk); none when ``final_rounds`` is 0. With ``release_straddles`` each starts by lifting
         stretched springs that straddle a body part off it.
     extra_above : float
         Strain that triggers the extra rounds (0.08 = 8 %, under the 10 % quality target).
     release_straddles : bool
         The extra rounds first lift stretched springs with a limb between their two particles off
-        that limb (``_contact_kernels.release_straddles``; session 17). Off by default: with it
-        (and 32 extra rounds) the sweep over the 252 recordings gains 2 takes per garment, but the
-        repeated lifts pump the skirt off a forearm lying in it (the synthetic forearm swing
-        through the hips at 30 Hz: 7.2 -> 174 %; docs/CLOTH.md, session 17).
+        that limb (``_contact_kernels.release_straddles``; session 17, on since session 18 with the
+        side test below: the 252 recordings' sweep gains 2 takes per garment, docs/CLOTH.md).
+    straddle_opposed : float
+        A straddle needs the limb's outward normals at the spring's two ends to point apart,
+        ``n_i . n_j < straddle_opposed`` (-0.5: more than 120 degrees): a limb between the two
+        particles, not cloth draped round it (session 18; > 1 turns the side test off).
     tethers : bool
         Long-range attachments on.
     friction : float
@@ -139,9 +141,10 @@ class ClothParams:
     limit_sweeps: int = 1
     final_sweeps: int = 2
     final_rounds: int = 2
-    extra_rounds: int = 12
+    extra_rounds: int = 32
     extra_above: float = 0.08
-    release_straddles: bool = False
+    release_straddles: bool = True
+    straddle_opposed: float = -0.5
     tethers: bool = True
     friction: float = 0.2
     margin: float = 0.006
@@ -385,7 +388,7 @@ def step(state: ClothState, model: ClothModel, track: CapsuleTrack, pin_keys: F6
             np.asarray(p.gravity, dtype=np.float64), p.mass_damping + extra_damping,
             model.lim_springs, model.lim_lo, model.lim_hi, p.limit_iterations, p.limit_sweeps, p.final_sweeps,
             p.final_rounds, p.extra_rounds if p.final_rounds > 0 else 0,
-            ((1.0 + p.extra_above) / (1.0 + p.max_stretch)) ** 2, p.release_straddles,
+            ((1.0 + p.extra_above) / (1.0 + p.max_stretch)) ** 2, p.release_straddles, p.straddle_opposed,
             np.ascontiguousarray(anchor, dtype=np.int64), np.ascontiguousarray(reach, dtype=np.float64),
             model.lines_v, model.rest_v, model.lines_h, model.rest_h, model.lines_s, model.rest_s,
             p.max_stretch, p.max_compression,

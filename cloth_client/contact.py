@@ -253,7 +253,7 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
 
 
 def release_straddles_np(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: F64, trigger2: float, a: F64,
-                         b: F64, radii: F64, margin: float) -> int:
+                         b: F64, radii: F64, margin: float, opposed: float) -> int:
     """Lift stretched springs that straddle a body part off it, in place (reference of
     ``_contact_kernels.release_straddles``, which documents the rule).
 
@@ -296,9 +296,11 @@ def release_straddles_np(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: 
         if not flat[m] < -STRADDLE_DEPTH:
             continue
         c, k = divmod(m, STRADDLE_SAMPLES)
-        ends, _, _ = round_cone_np(x[[i, j]], a[c:c + 1], b[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+        ends, en, _ = round_cone_np(x[[i, j]], a[c:c + 1], b[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
         if (ends < 0.0).any():
             continue  # an end inside: collision moves that particle out
+        if not float(en[0, 0] @ en[1, 0]) < opposed:
+            continue  # both ends on the same side of the limb
         t = ts[k]
         push = (margin - flat[m]) / (wi * (1.0 - t) ** 2 + wj * t * t)
         x[i] += wi * (1.0 - t) * push * normal[k, c]

@@ -77,7 +77,8 @@ class DriverConfig:
     """Timing of dressing, interpolation and resets (seconds; damping in 1/s); the sunk-limb rules
     (metres): ``limb_clearance`` the gap sunk forearms and hands are turned out to
     (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs), ``ghost_depth`` /
-    ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again."""
+    ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again; a slid seam's
+    move spread over ``seam_spread`` pins either side (``AvatarKeys.slide_seam``; 0: none)."""
 
     key_dt: float = 1.0 / 240.0
     dress_s: float = 0.6
@@ -88,6 +89,7 @@ class DriverConfig:
     reset_damping: float = 6.0
     seam_reach: float = 0.04
     slide_fraction: float = 0.8
+    seam_spread: int = 8
     ghost_depth: float = 0.02
     ghost_clear: float = -0.03
     limb_clearance: float | None = LIMB_CLEARANCE
@@ -295,7 +297,7 @@ class ClothDriver:
         if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
             # slide the seam over the body part that covers it (always for a collar; for a
             # waistband when most of it is covered, instead of letting the garment go)
-            pins = keys.push_out(pins, self.model.params.margin)
+            pins = keys.slide_seam(pins, self.model.params.margin, self.config.seam_spread, self.garment.wrap)
             released[:] = False
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s

@@ -202,11 +202,12 @@ def _line_pass(x: F64, model: ClothModel, inv_mass: F64, contact: F64, sweeps: i
         ring_limit_np(x, inv_mass, model.lines_s, model.rest_s, p.max_stretch, p.max_compression, contact)
 
 
-def worst_stretch2_np(x: F64, springs: I64, hi: F64) -> float:
-    """Largest ``(l / hi)**2`` over ``springs (L, 2)``, ``hi (L,)`` their upper length bounds (reference of
-    ``K._worst_stretch2``)."""
-    d = x[springs[:, 1]] - x[springs[:, 0]]
-    return float((np.einsum("ij,ij->i", d, d) / (hi * hi)).max(initial=0.0))
+def worst_stretch2_np(x: F64, springs: I64, hi: F64, inv_mass: F64) -> float:
+    """Largest ``(l / hi)**2`` over the ``springs (L, 2)`` with a free end (``inv_mass (N,)``), ``hi (L,)``
+    their upper length bounds (reference of ``K._worst_stretch2``)."""
+    free = inv_mass[springs[:, 0]] + inv_mass[springs[:, 1]] > 0.0
+    d = x[springs[free, 1]] - x[springs[free, 0]]
+    return float((np.einsum("ij,ij->i", d, d) / (hi[free] * hi[free])).max(initial=0.0))
 
 
 def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, track: CapsuleTrack, pins: F64,
@@ -242,12 +243,12 @@ def substeps_np(x: F64, v: F64, model: ClothModel, inv_mass: F64, pin_idx: I64, 
             collide_np(x, v, free, a0, b0, a1, b1, track.radii, p.margin, p.friction, dt, p.floor, contact, xp)
         rounds = max(p.final_rounds, 1)
         for r in range(rounds + extra):  # extra rounds while a structural spring is over extra_above
-            if r >= rounds and worst_stretch2_np(x, model.lim_springs, model.lim_hi) <= trigger2:
+            if r >= rounds and worst_stretch2_np(x, model.lim_springs, model.lim_hi, inv_mass) <= trigger2:
                 break
             before = x.copy()  # contact-aware: cloth on the body slides over it, not into it
             if p.release_straddles and r >= rounds:  # a limb between two particles of a stretched spring
                 release_straddles_np(x, inv_mass, model.lim_springs, model.lim_hi, trigger2, a1, b1, track.radii,
-                                     p.margin)
+                                     p.margin, p.straddle_opposed)
             _line_pass(x, model, inv_mass, contact, p.final_sweeps)
             strain_limit_np(x, inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches,
                             1 if p.final_sweeps > 0 else 0, contact)

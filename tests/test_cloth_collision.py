@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cloth_client import _kernels as K
-from cloth_client.avatar import capsule_endpoints, pose_keys
+from cloth_client.avatar import AvatarKeys, capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
 from cloth_client.contact import (
@@ -403,6 +403,56 @@ def _bent_keys_and_points(seed: int, n: int):  # type: ignore[no-untyped-def]
     return body, keys, pts
 
 
+@pytest.mark.parametrize(("spread", "wrap"), [(0, False), (6, False), (6, True)])
+def test_slide_seam_kernel_matches_numpy(spread: int, wrap: bool) -> None:
+    """The numba seam slide equals its numpy reference, leaves its input alone and clears the body."""
+    _body, keys, pts = _bent_keys_and_points(9, 300)
+    before = pts.copy()
+    got = keys.slide_seam(pts, 0.006, spread, wrap)
+    ref = keys.slide_seam(pts, 0.006, spread, wrap, backend="numpy")
+    np.testing.assert_array_equal(pts, before)
+    assert (np.linalg.norm(ref - pts, axis=-1) > 1e-9).sum() > 40
+    np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
+    with pytest.raises(ValueError, match="spread"):
+        keys.slide_seam(pts, 0.006, -1)
+
+
+def _seam_under_a_ball(depth: float) -> tuple[AvatarKeys, np.ndarray]:
+    """A straight seam of 41 pins 1 cm apart along x, and a ball of radius 5 cm (a head thrown back)
+    sunk ``depth`` metres into its middle from above."""
+    centre = np.array([0.0, 0.05 - depth, 0.0])
+    a = np.repeat(centre[None, None], 2, axis=0)
+    track = CapsuleTrack(a, a.copy(), np.array([[0.05, 0.05]]))
+    keys = AvatarKeys(track, np.zeros((2, 1, 3)), np.repeat(np.eye(3)[None, None], 2, axis=0))
+    x = np.linspace(-0.2, 0.2, 41)
+    seam = np.stack([x, np.zeros_like(x), np.zeros_like(x)], axis=1)
+    return keys, np.repeat(seam[None], 2, axis=0)
+
+
+def test_slid_seam_keeps_its_length_under_a_body_part() -> None:
+    """Pushing each covered pin along its own normal spreads a seam round the ball that covers it
+    (the cape's collar under the skull); sliding it carries the covered pins together and spreads
+    the step over their neighbours, so the pins' spacing stays near its rest length."""
+    keys, seam = _seam_under_a_ball(0.02)
+    r = keys.track.radii[0, 0]
+
+    def worst_strain(p: np.ndarray) -> float:
+        return float((np.linalg.norm(np.diff(p[0], axis=0), axis=1) / 0.01 - 1.0).max())
+
+    def clearance(p: np.ndarray) -> float:
+        return float(np.linalg.norm(p[0] - keys.track.a[0, 0], axis=1).min() - r)
+
+    radial = keys.push_out(seam, 0.006)
+    assert clearance(radial) >= 0.006 - 1e-9 and worst_strain(radial) > 0.4
+    for backend in ("numba", "numpy"):
+        slid = keys.slide_seam(seam, 0.006, 8, backend=backend)
+        assert clearance(slid) >= 0.006 - 1e-9
+        assert worst_strain(slid) < 0.1, backend
+        assert worst_strain(keys.slide_seam(seam, 0.006, 0, backend=backend)) > 0.1  # the spread matters
+    free, _ = _seam_under_a_ball(-0.01)  # the ball 1 cm clear of the seam: nothing moves
+    np.testing.assert_allclose(free.slide_seam(seam, 0.006, 8), seam, atol=0)
+
+
 def test_covered_kernel_matches_numpy() -> None:
     body, keys, pts = _bent_keys_and_points(2, 500)
     reach = np.full(len(body.capsule_radii), 0.006)
@@ -473,6 +523,33 @@ def _straddle_scene(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
     return x, inv_mass, np.array(springs, np.int64), np.array(hi), a, b, radii
 
 
+OPPOSED = ClothParams().straddle_opposed
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_cloth_draped_round_a_limb_is_not_lifted(rng: np.random.Generator, backend: str) -> None:
+    """A stretched spring whose chord cuts into a limb with both ends on the same side of it (cloth
+    lying over an arm, ends 80 degrees apart round the axis) is left to collision and the strain
+    limit; with the side test off (``opposed`` > 1) it would be lifted (session 17's pumping)."""
+    a, b = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.4, 0.0]])
+    radii = np.array([[0.04, 0.04]])
+    pts = []
+    for _ in range(6):
+        y = rng.uniform(0.1, 0.3)
+        base = rng.uniform(0.0, 2.0 * np.pi)
+        for ang in (base - np.radians(40.0), base + np.radians(40.0)):
+            pts.append([0.0405 * np.cos(ang), y, 0.0405 * np.sin(ang)])
+    x = np.array(pts)
+    springs = np.arange(len(x), dtype=np.int64).reshape(-1, 2)
+    hi = np.linalg.norm(x[1::2] - x[::2], axis=1) / 1.3
+    inv_mass = np.ones(len(x))
+    fn = K.release_straddles if backend == "numba" else release_straddles_np
+    xb = x.copy()
+    assert fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, 0.006, OPPOSED) == 0
+    np.testing.assert_array_equal(xb, x)
+    assert fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, 0.006, 1.5) == len(springs)  # the chords are inside
+
+
 def test_straddled_spring_is_lifted_off_the_limb(rng: np.random.Generator) -> None:
     """A stretched spring with a limb between its particles is moved to one side of the limb (both
     backends agree), so its chord clears the capsule by the margin; slack springs, springs clear of
@@ -483,7 +560,7 @@ def test_straddled_spring_is_lifted_off_the_limb(rng: np.random.Generator) -> No
     for backend in ("numba", "numpy"):
         xb = x.copy()
         fn = K.release_straddles if backend == "numba" else release_straddles_np
-        out[backend] = (fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, margin), xb)
+        out[backend] = (fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, margin, OPPOSED), xb)
     (n, got), (n_ref, ref) = out["numba"], out["numpy"]
     assert n == n_ref == 12  # kinds 0 and 1 of 24
     np.testing.assert_allclose(got, ref, atol=1e-12, rtol=0)

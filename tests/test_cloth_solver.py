@@ -228,9 +228,23 @@ def test_constraint_kernels_match_numpy(model, rng: np.random.Generator) -> None
     strain_limit_np(b, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 3, contact)
     np.testing.assert_allclose(a, b, atol=1e-12)
     assert np.abs(a - x).max() > 1e-3  # the test did exercise the constraints
-    worst = K._worst_stretch2(x, model.lim_springs, model.lim_hi)
+    worst = K._worst_stretch2(x, model.lim_springs, model.lim_hi, model.inv_mass)
     assert worst > 1.0
-    np.testing.assert_allclose(worst, worst_stretch2_np(x, model.lim_springs, model.lim_hi), rtol=1e-12)
+    np.testing.assert_allclose(worst, worst_stretch2_np(x, model.lim_springs, model.lim_hi, model.inv_mass), rtol=1e-12)
+    # springs between two pins are left out of the trigger (no round can shorten them)
+    pinned = np.zeros_like(model.inv_mass)
+    assert K._worst_stretch2(x, model.lim_springs, model.lim_hi, pinned) == 0.0
+    assert worst_stretch2_np(x, model.lim_springs, model.lim_hi, pinned) == 0.0
+    ends = model.lim_springs[np.argmax(np.linalg.norm(x[model.lim_springs[:, 1]] - x[model.lim_springs[:, 0]], axis=1)
+                                       / model.lim_hi)]
+    held = model.inv_mass.copy()
+    held[ends] = 0.0  # the worst spring's two ends pinned: the next worst counts
+    got = K._worst_stretch2(x, model.lim_springs, model.lim_hi, held)
+    free = held[model.lim_springs].sum(axis=1) > 0
+    ratio = (np.linalg.norm(x[model.lim_springs[:, 1]] - x[model.lim_springs[:, 0]], axis=1) / model.lim_hi) ** 2
+    assert not free.all() and got <= worst
+    np.testing.assert_allclose(got, ratio[free].max(), rtol=1e-12)
+    np.testing.assert_allclose(got, worst_stretch2_np(x, model.lim_springs, model.lim_hi, held), rtol=1e-12)
 
 
 def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]

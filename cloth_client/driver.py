@@ -78,7 +78,8 @@ class DriverConfig:
     (metres): ``limb_clearance`` the gap sunk forearms and hands are turned out to
     (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs), ``ghost_depth`` /
     ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again; a slid seam's
-    move spread over ``seam_spread`` pins either side (``AvatarKeys.slide_seam``; 0: none)."""
+    move spread along ``seam_spread`` metres of the seam either side (``AvatarKeys.slide_seam``,
+    rounded to whole pins: 8 at 2,000 particles; 0: none)."""
 
     key_dt: float = 1.0 / 240.0
     dress_s: float = 0.6
@@ -89,7 +90,7 @@ class DriverConfig:
     reset_damping: float = 6.0
     seam_reach: float = 0.04
     slide_fraction: float = 0.8
-    seam_spread: int = 8
+    seam_spread: float = 0.09
     ghost_depth: float = 0.02
     ghost_clear: float = -0.03
     limb_clearance: float | None = LIMB_CLEARANCE
@@ -169,6 +170,11 @@ class ClothDriver:
         self._free = self.model.inv_mass > 0
         self._first: tuple[F64, float] | None = None
         self._seam_margin = self._seam_reach()
+        if not self.config.seam_spread >= 0.0:
+            raise ValueError(f"seam_spread must be >= 0 metres, got {self.config.seam_spread}")
+        seam = garment.rest[garment.pin_index]
+        spacing = float(np.linalg.norm(np.diff(seam, axis=0), axis=1).mean()) if len(seam) > 1 else 0.0
+        self._spread_pins = round(self.config.seam_spread / spacing) if spacing > 0.0 else 0
         self._body_end: tuple[F64, F64] | None = None
         self._ghost = np.zeros(len(LIMBS), dtype=bool)
         self._overlap: F64 | None = None
@@ -297,7 +303,7 @@ class ClothDriver:
         if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
             # slide the seam over the body part that covers it (always for a collar; for a
             # waistband when most of it is covered, instead of letting the garment go)
-            pins = keys.slide_seam(pins, self.model.params.margin, self.config.seam_spread, self.garment.wrap)
+            pins = keys.slide_seam(pins, self.model.params.margin, self._spread_pins, self.garment.wrap)
             released[:] = False
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s

@@ -171,6 +171,19 @@ def test_interpolated_poses_keep_bone_lengths_and_hit_the_ends() -> None:
     np.testing.assert_allclose(hand, hand[0], rtol=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["cape", "skirt"])
+def test_seam_spread_is_a_length_along_the_seam(kind: str) -> None:
+    """``DriverConfig.seam_spread`` (metres) becomes whole pins of the garment's seam: 8 at the
+    2,000-particle size the sweep measured, more on a finer garment; a negative length is refused."""
+    body = default_body()
+    coarse = ClothDriver(body, make_garment(kind, body, 2000))
+    fine = ClothDriver(body, make_garment(kind, body, 5000))
+    assert coarse._spread_pins == 8 and fine._spread_pins > coarse._spread_pins
+    assert ClothDriver(body, make_garment(kind, body, 2000), config=DriverConfig(seam_spread=0.0))._spread_pins == 0
+    with pytest.raises(ValueError, match="seam_spread"):
+        ClothDriver(body, make_garment(kind, body, 2000), config=DriverConfig(seam_spread=-0.01))
+
+
 # --- garments -------------------------------------------------------------------------------------
 
 def test_grid_topology_counts() -> None:

@@ -171,13 +171,17 @@ class AvatarKeys:
         out: F64 = origin + offset
         return out
 
+    def _check_points(self, points: F64) -> None:
+        """Raise ValueError unless ``points`` is ``(K + 1, P, 3)`` for this track's keys."""
+        if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
+            raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
+
     def push_out(self, points: F64, clearance: float, backend: str = "numba") -> F64:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
         (two projection passes over the nearest capsule); ``backend="numpy"`` runs the plain
         reference of the kernel."""
         check_backend(backend)
-        if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
-            raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
+        self._check_points(points)
         if backend == "numba":
             moved = np.array(points, dtype=np.float64, order="C")
             push_out_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
@@ -202,8 +206,7 @@ class AvatarKeys:
         pushed radially to ``clearance`` (``_contact_kernels.slide_seam`` documents the rule;
         ``backend="numpy"`` runs this plain reference)."""
         check_backend(backend)
-        if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
-            raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
+        self._check_points(points)
         if spread < 0:
             raise ValueError(f"spread must be >= 0, got {spread}")
         if backend == "numba":

@@ -705,6 +705,11 @@ def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread
     push_out(points, a, b, radii, clearance, 2)
 
 
+#: Smallest axis fraction a push of the upper arm is levered at (:func:`clear_limbs`): the shoulder
+#: end cannot move, so a push near it turns the elbow by push / fraction; this caps that gain at 4.
+UPPER_ARM_MIN_LEVER = 0.25
+
+
 @_inline
 def _deepest(a: F64, b: F64, radii: F64, cap: int, trunk: NDArray[np.int64], geo: F64, s: F64,
              clearance: float) -> tuple[float, float, float, float, float]:  # pragma: no cover
@@ -744,8 +749,9 @@ def _norm3(v: F64) -> float:  # pragma: no cover
 @_inline
 def _sunk(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArray[np.int64], geo: F64, s: F64,
           clearance: float) -> bool:  # pragma: no cover
-    """Whether the forearm or the hand of ``chain`` is nearer the trunk than ``clearance``."""
-    return max(_deepest(a, b, radii, chain[1], trunk, geo, s, clearance)[0],
+    """Whether the upper arm, the forearm or the hand of ``chain`` is nearer the trunk than ``clearance``."""
+    return max(_deepest(a, b, radii, chain[0], trunk, geo, s, clearance)[0],
+               _deepest(a, b, radii, chain[1], trunk, geo, s, clearance)[0],
                _deepest(a, b, radii, chain[2], trunk, geo, s, clearance)[0]) > 1e-6
 
 
@@ -769,15 +775,28 @@ def _rebuild(a: F64, b: F64, chain: NDArray[np.int64], raw: F64, offset: F64, la
 @_jit
 def _arm_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArray[np.int64], geo: F64, s: F64,
              clearance: float, max_push: float, iterations: int, n: F64, tgt: F64) -> None:  # pragma: no cover
-    """Rounds of pushes of the forearm, then the hand, of arm ``chain`` of one key out of the trunk
-    along the nearest surface's normal, in place (``n``, ``tgt``: (3,) scratch)."""
+    """Rounds of pushes of the upper arm, the forearm, then the hand, of arm ``chain`` of one key out
+    of the trunk along the nearest surface's normal, in place (``n``, ``tgt``: (3,) scratch)."""
     for _ in range(iterations):
         moved = False
-        for i in (1, 2):  # forearm, then hand
-            cap, parent = chain[i], chain[i - 1]
+        for i in (0, 1, 2):  # upper arm, forearm, then hand
+            cap = chain[i]
             push, n[0], n[1], n[2], sj = _deepest(a, b, radii, cap, trunk, geo, s, clearance)
             if push <= 1e-6 or push > max_push:
                 continue
+            if i == 0:  # the shoulder stays: the elbow turns about it (a lever, the push at sj)
+                lever = push / max(sj, UPPER_ARM_MIN_LEVER)
+                if lever > max_push:
+                    continue
+                moved = True
+                elbow = b[cap].copy()
+                tgt[:] = elbow + lever * n
+                _place(a[cap], b[cap], tgt, _norm3(elbow - a[cap]))
+                for j in (1, 2):  # forearm and hand ride the elbow
+                    b[chain[j]] += b[cap] - elbow
+                    a[chain[j]] = b[chain[j - 1]]
+                continue
+            parent = chain[i - 1]
             moved = True
             den = (1.0 - sj) ** 2 + sj * sj
             ca, cb = push * (1.0 - sj) / den, push * sj / den
@@ -799,7 +818,7 @@ def _arm_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArra
 def clear_limbs(a: F64, b: F64, radii: F64, arms: NDArray[np.int64], trunk: NDArray[np.int64], s: F64,
                 clearance: float, max_push: float, iterations: int, memory: F64,
                 first_given: bool) -> None:  # pragma: no cover
-    """Sunk forearms and hands turned out of the trunk, in place (the rule, and its numpy
+    """Sunk upper arms, forearms and hands turned out of the trunk, in place (the rule, and its numpy
     reference: :func:`cloth_client.limb_clearance.clear_limbs_track` with ``backend="numpy"``).
 
     Parameters

@@ -280,7 +280,7 @@ def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE,
               limb_memory: F64 | None = None) -> AvatarKeys:
     """Capsules and joint frames of a pose sequence ``(K + 1, P)`` (one FK call for all keys).
 
-    With ``clearance`` (metres; None: the recorded limbs) sunk forearms and hands are turned out of
+    With ``clearance`` (metres; None: the recorded limbs) sunk upper arms, forearms and hands are turned out of
     the trunk (:func:`~cloth_client.limb_clearance.clear_limbs_track`, continuing from
     ``limb_memory``, the previous step's :attr:`AvatarKeys.limb_memory`, whose last key is
     ``poses[0]``); ``joints`` stay the recorded ones.
@@ -297,7 +297,7 @@ def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE,
 
 def avatar_capsules(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE) -> tuple[F64, F64]:
     """Capsule endpoints of the avatar the cloth is dressed on: :func:`capsule_endpoints` with sunk
-    forearms and hands turned out of the trunk (``(N, C, 3)``, or ``(C, 3)`` for one pose ``(P,)``;
+    upper arms, forearms and hands turned out of the trunk (``(N, C, 3)``, or ``(C, 3)`` for one pose ``(P,)``;
     the poses are taken as consecutive keys, each continuing the previous one's corrections)."""
     a, b = capsule_endpoints(body, poses)
     if clearance is None:

@@ -75,7 +75,7 @@ GHOST_RADIUS = 1e-3  # radius of a limb that is sunk into the trunk (m); see Clo
 @dataclass(frozen=True)
 class DriverConfig:
     """Timing of dressing, interpolation and resets (seconds; damping in 1/s); the sunk-limb rules
-    (metres): ``limb_clearance`` the gap sunk forearms and hands are turned out to
+    (metres): ``limb_clearance`` the gap sunk upper arms, forearms and hands are turned out to
     (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs), ``ghost_depth`` /
     ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again; a slid seam's
     move spread along ``seam_spread`` metres of the seam either side (``AvatarKeys.slide_seam``,

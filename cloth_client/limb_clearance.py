@@ -1,21 +1,26 @@
-"""Forearms and hands kept out of the trunk: the avatar's self-intersection resolved before the cloth.
+"""Arms kept out of the trunk: the avatar's self-intersection resolved before the cloth.
 
 Recordings and the capsule body let a forearm or a hand sink into the trunk: a hand pressed on the
 hip, an arm swung across the belly, or simply a real hip narrower than its capsule (in the shared
 recordings up to 14 cm deep, most often 2-7 cm, in 40 of 252 takes). No cloth position is then
 outside both parts, so cloth under the limb ends inside one of them, and a limb that later leaves
-the trunk drags the garment with it.
+the trunk drags the garment with it. An upper arm pressed against the ribs or the hip (an arm held
+tight to the side; CMU ``61_10`` up to 38 mm deep) leaves no room for the cape caught under it,
+which the arm then drags (cape ``call_normal_001`` 261 %, ``61_10_scaled`` 325 % strain, session 19).
 
 :func:`clear_limbs` moves each sunk limb out the way the arm itself would move: the elbow turns about
 the shoulder and the wrist about the elbow (every length kept) until the limb's surface is
 ``clearance`` away from the trunk's; the hand is carried with the wrist and then turns the same way.
-The push is along the outward normal of the trunk surface nearest the deepest point of the limb's
-axis, by that point's depth plus the clearance, so it grows continuously from zero as a limb comes
-within the clearance. The correction is carried from key to key (:func:`clear_limbs_track`): where
-the nearest surface flips (at a trunk part's axis, in the crease between hip and thigh) a fresh
-correction would jump to the other side, so the previous one is kept instead. A limb passing right
-through the trunk has no continuous way out: a side whose forearm would need more than
-``MAX_PUSH`` is left as recorded, for :meth:`cloth_client.driver.ClothDriver._ghosted`.
+An upper arm turns about the fixed shoulder: its elbow moves by the push over the deepest point's
+axis fraction (a lever, at least :data:`~cloth_client._contact_kernels.UPPER_ARM_MIN_LEVER`), the
+forearm and hand ride along. The push is along the outward normal of the trunk surface nearest the
+deepest point of the limb's axis, by that point's depth plus the clearance, so it grows
+continuously from zero as a limb comes within the clearance. The correction is carried from key to
+key (:func:`clear_limbs_track`): where the nearest surface flips (at a trunk part's axis, in the
+crease between hip and thigh) a fresh correction would jump to the other side, so the previous one
+is kept instead. A limb passing right through the trunk has no continuous way out: a side whose
+forearm would need more than ``MAX_PUSH`` is left as recorded, for
+:meth:`cloth_client.driver.ClothDriver._ghosted`.
 
 The corrected capsules are the avatar: the cloth collides with them, penetration is measured
 against them and the renderer draws them (:attr:`cloth_client.driver.ClothDriver.body_capsules`;
@@ -134,7 +139,7 @@ def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDA
 
 def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, max_push: float = MAX_PUSH,
                 iterations: int = 4, samples: int = 9, backend: str = "numba") -> tuple[F64, F64]:
-    """Capsule endpoints with every sunk forearm and hand turned out of the trunk.
+    """Capsule endpoints with every sunk upper arm, forearm and hand turned out of the trunk.
 
     :func:`clear_limbs_track` with no correction carried in (keys taken in time order); see there
     for the rule and the parameters.
@@ -152,11 +157,13 @@ def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, m
 def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, clearance: float = LIMB_CLEARANCE,
                       max_push: float = MAX_PUSH, iterations: int = 4, samples: int = 9, backend: str = "numba",
                       first_given: bool = False) -> tuple[F64, F64, F64]:
-    """Capsule endpoints of keys in time order with every sunk forearm and hand turned out of the
-    trunk, and the corrections to carry to the next key.
+    """Capsule endpoints of keys in time order with every sunk upper arm, forearm and hand turned out
+    of the trunk, and the corrections to carry to the next key.
 
-    Each round takes the forearm, then the hand, of each side: the deepest sample ``s`` of the
-    capsule's axis must move by ``p n`` (``p`` its depth plus the clearance, ``n`` the nearest trunk
+    Each round takes the upper arm, the forearm, then the hand, of each side. The upper arm's elbow
+    turns about the shoulder by ``p n / max(s, UPPER_ARM_MIN_LEVER)`` (``p``, ``n``, ``s`` as below;
+    the forearm and hand carried with it, lengths kept). For the forearm and the hand the deepest
+    sample ``s`` of the capsule's axis must move by ``p n`` (``p`` its depth plus the clearance, ``n`` the nearest trunk
     surface's outward normal). The capsule's ends move by the least-norm split of that,
     ``(1 - s) p n / D`` and ``s p n / D`` with ``D = (1 - s)^2 + s^2``; the near end (elbow, wrist)
     turns about its parent's pivot (shoulder, elbow) towards its target, the far end is carried
@@ -275,15 +282,15 @@ def _clear_key(a: F64, b: F64, radii: F64, mem: F64, clearance: float, max_push:
 
 
 def _sunk(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], clearance: float, s: F64) -> bool:
-    """Whether the forearm or hand of ``chain`` (one key) is nearer the trunk than ``clearance``."""
-    return max(float(_deepest(a, b, radii, chain[i], clearance, s)[0][0]) for i in (1, 2)) > 1e-6
+    """Whether the upper arm, forearm or hand of ``chain`` (one key) is nearer the trunk than ``clearance``."""
+    return max(float(_deepest(a, b, radii, chain[i], clearance, s)[0][0]) for i in (0, 1, 2)) > 1e-6
 
 
 def _arm_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], clearance: float, max_push: float,
              iterations: int, s: F64) -> None:
-    """Rounds of pushes of the forearm, then the hand, of ``chain`` (one key), in place."""
+    """Rounds of pushes of the upper arm, the forearm, then the hand, of ``chain`` (one key), in place."""
     for _ in range(iterations):
-        moved = [_push_out(a, b, radii, chain, i, clearance, max_push, s) for i in (1, 2)]
+        moved = [_push_out(a, b, radii, chain, i, clearance, max_push, s) for i in (0, 1, 2)]
         if not any(moved):
             break
 
@@ -317,12 +324,25 @@ def _deepest(a: F64, b: F64, radii: F64, cap: int, clearance: float, s: F64) -> 
 
 def _push_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], i: int, clearance: float, max_push: float,
               s: F64) -> bool:
-    """One push of capsule ``chain[i]`` (1: forearm, 2: hand) of one key ``(1, C, 3)`` along the
-    nearest trunk surface's normal, in place; False when it needs none (or more than ``max_push``)."""
-    cap, parent = chain[i], chain[i - 1]
+    """One push of capsule ``chain[i]`` (0: upper arm, 1: forearm, 2: hand) of one key ``(1, C, 3)``
+    along the nearest trunk surface's normal, in place; False when it needs none (or more than
+    ``max_push``)."""
+    cap = chain[i]
     push_, n, sj_ = _deepest(a, b, radii, cap, clearance, s)
     if not 1e-6 < push_[0] <= max_push:
         return False
+    if i == 0:  # the shoulder stays: the elbow turns about it, levered at the push's axis fraction
+        lever = push_[0] / max(sj_[0], K.UPPER_ARM_MIN_LEVER)
+        if lever > max_push:
+            return False
+        elbow = b[:, cap].copy()
+        length = np.linalg.norm(elbow - a[:, cap], axis=-1, keepdims=True)
+        b[:, cap] = _unit_towards(a[:, cap], elbow + lever * n, length, elbow)
+        for j in (1, 2):  # forearm and hand ride the elbow
+            b[:, chain[j]] += b[:, cap] - elbow
+            a[:, chain[j]] = b[:, chain[j - 1]]
+        return True
+    parent = chain[i - 1]
     push, sj = push_[:, None], sj_[:, None]
     den = (1.0 - sj) ** 2 + sj**2
     near, far = a[:, cap].copy(), b[:, cap].copy()

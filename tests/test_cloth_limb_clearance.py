@@ -244,3 +244,35 @@ def test_limb_overlap_kernel_matches_numpy() -> None:
         limb_overlap(a[:3], b[:3], R[:3])
     with pytest.raises(ValueError, match="samples"):
         limb_overlap(a, b, R, samples=0)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_an_upper_arm_pressed_into_the_side_turns_out_about_the_shoulder(backend: str) -> None:
+    """An arm pressed against the ribs (the elbow moved 10 cm in from the standing pose): the elbow turns
+    about the fixed shoulder until the upper arm is at least ``LIMB_CLEARANCE`` off the trunk (room for the
+    cape caught under it); forearm and hand ride along, every length kept."""
+    a, b = capsule_endpoints(BODY, standing_pose(BODY))
+    up, fore, hand = ARMS[0]
+    uarm = np.array([up])
+    shoulder, elbow = a[up].copy(), b[up].copy()
+    length = np.linalg.norm(elbow - shoulder)
+    target = elbow + np.array([-0.10, 0.0, 0.0])
+    new_elbow = shoulder + length * (target - shoulder) / np.linalg.norm(target - shoulder)
+    a2, b2 = a.copy(), b.copy()
+    b2[up] = new_elbow
+    for cap in (fore, hand):  # the rest of the arm carried with the elbow
+        a2[cap] += new_elbow - elbow
+        b2[cap] += new_elbow - elbow
+    assert limb_overlap(a2, b2, R, uarm)[0] > 0.0  # sunk into the trunk
+    ac, bc = clear_limbs(a2, b2, R, backend=backend)
+    # clear of the trunk; a little further where the sunk forearm's own push turned the elbow too
+    assert -0.04 < limb_overlap(ac, bc, R, uarm)[0] <= -LIMB_CLEARANCE + 1e-3
+    np.testing.assert_array_equal(ac[up], shoulder)
+    np.testing.assert_allclose(np.linalg.norm(bc - ac, axis=-1), np.linalg.norm(b2 - a2, axis=-1), atol=1e-9)
+    np.testing.assert_allclose(bc[up], ac[fore], atol=1e-12)
+    np.testing.assert_allclose(bc[fore], ac[hand], atol=1e-12)
+    assert bc[up, 0] > new_elbow[0] + 0.01  # the elbow went out, away from the ribs
+    assert np.linalg.norm(bc[up] - elbow) < 0.10  # not past the standing pose
+    ar, br = clear_limbs(a, b, R, backend=backend)  # the standing arm (4 cm off) is left alone
+    np.testing.assert_array_equal(ar, a)
+    np.testing.assert_array_equal(br, b)

@@ -750,9 +750,10 @@ def _norm3(v: F64) -> float:  # pragma: no cover
 def _sunk(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArray[np.int64], geo: F64, s: F64,
           clearance: float) -> bool:  # pragma: no cover
     """Whether the upper arm, the forearm or the hand of ``chain`` is nearer the trunk than ``clearance``."""
-    return max(_deepest(a, b, radii, chain[0], trunk, geo, s, clearance)[0],
-               _deepest(a, b, radii, chain[1], trunk, geo, s, clearance)[0],
-               _deepest(a, b, radii, chain[2], trunk, geo, s, clearance)[0]) > 1e-6
+    for i in range(3):
+        if _deepest(a, b, radii, chain[i], trunk, geo, s, clearance)[0] > 1e-6:
+            return True
+    return False
 
 
 @_inline
@@ -784,32 +785,28 @@ def _arm_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], trunk: NDArra
             push, n[0], n[1], n[2], sj = _deepest(a, b, radii, cap, trunk, geo, s, clearance)
             if push <= 1e-6 or push > max_push:
                 continue
+            far = b[cap].copy()
             if i == 0:  # the shoulder stays: the elbow turns about it (a lever, the push at sj)
                 lever = push / max(sj, UPPER_ARM_MIN_LEVER)
                 if lever > max_push:
                     continue
-                moved = True
-                elbow = b[cap].copy()
-                tgt[:] = elbow + lever * n
-                _place(a[cap], b[cap], tgt, _norm3(elbow - a[cap]))
-                for j in (1, 2):  # forearm and hand ride the elbow
-                    b[chain[j]] += b[cap] - elbow
-                    a[chain[j]] = b[chain[j - 1]]
-                continue
-            parent = chain[i - 1]
+                tgt[:] = far + lever * n
+                _place(a[cap], b[cap], tgt, _norm3(far - a[cap]))
+            else:
+                parent = chain[i - 1]
+                den = (1.0 - sj) ** 2 + sj * sj
+                ca, cb = push * (1.0 - sj) / den, push * sj / den
+                near = a[cap].copy()
+                l_near, l_far = _norm3(b[parent] - a[parent]), _norm3(far - near)
+                tgt[:] = near + ca * n  # the near end turns about the parent's pivot
+                _place(a[parent], b[parent], tgt, l_near)
+                a[cap] = b[parent]
+                tgt[:] = far + (a[cap] - near) + cb * n  # the far end goes with it, then turns
+                _place(a[cap], b[cap], tgt, l_far)
             moved = True
-            den = (1.0 - sj) ** 2 + sj * sj
-            ca, cb = push * (1.0 - sj) / den, push * sj / den
-            near, far = a[cap].copy(), b[cap].copy()
-            l_near, l_far = _norm3(b[parent] - a[parent]), _norm3(far - near)
-            tgt[:] = near + ca * n  # the near end turns about the parent's pivot
-            _place(a[parent], b[parent], tgt, l_near)
-            a[cap] = b[parent]
-            tgt[:] = far + (a[cap] - near) + cb * n  # the far end goes with it, then turns
-            _place(a[cap], b[cap], tgt, l_far)
-            if i == 1:  # the hand rides the wrist
-                b[chain[2]] += b[cap] - far
-                a[chain[2]] = b[cap]
+            for j in range(i + 1, 3):  # the rest of the arm rides the moved end (elbow or wrist)
+                b[chain[j]] += b[cap] - far
+                a[chain[j]] = b[chain[j - 1]]
         if not moved:
             break
 

@@ -331,29 +331,25 @@ def _push_out(a: F64, b: F64, radii: F64, chain: NDArray[np.int64], i: int, clea
     push_, n, sj_ = _deepest(a, b, radii, cap, clearance, s)
     if not 1e-6 < push_[0] <= max_push:
         return False
+    far = b[:, cap].copy()
     if i == 0:  # the shoulder stays: the elbow turns about it, levered at the push's axis fraction
         lever = push_[0] / max(sj_[0], K.UPPER_ARM_MIN_LEVER)
         if lever > max_push:
             return False
-        elbow = b[:, cap].copy()
-        length = np.linalg.norm(elbow - a[:, cap], axis=-1, keepdims=True)
-        b[:, cap] = _unit_towards(a[:, cap], elbow + lever * n, length, elbow)
-        for j in (1, 2):  # forearm and hand ride the elbow
-            b[:, chain[j]] += b[:, cap] - elbow
-            a[:, chain[j]] = b[:, chain[j - 1]]
-        return True
-    parent = chain[i - 1]
-    push, sj = push_[:, None], sj_[:, None]
-    den = (1.0 - sj) ** 2 + sj**2
-    near, far = a[:, cap].copy(), b[:, cap].copy()
-    l_near = np.linalg.norm(b[:, parent] - a[:, parent], axis=-1, keepdims=True)
-    l_far = np.linalg.norm(far - near, axis=-1, keepdims=True)
-    new_near = _unit_towards(a[:, parent], near + push * (1.0 - sj) / den * n, l_near, b[:, parent])
-    new_far = _unit_towards(new_near, far + (new_near - near) + push * sj / den * n, l_far, far)
-    b[:, parent] = new_near
-    a[:, cap] = new_near
-    b[:, cap] = new_far
-    if i == 1:  # the hand rides the wrist
-        b[:, chain[2]] += new_far - far
-        a[:, chain[2]] = new_far
+        length = np.linalg.norm(far - a[:, cap], axis=-1, keepdims=True)
+        b[:, cap] = _unit_towards(a[:, cap], far + lever * n, length, far)
+    else:
+        parent = chain[i - 1]
+        push, sj = push_[:, None], sj_[:, None]
+        den = (1.0 - sj) ** 2 + sj**2
+        near = a[:, cap].copy()
+        l_near = np.linalg.norm(b[:, parent] - a[:, parent], axis=-1, keepdims=True)
+        l_far = np.linalg.norm(far - near, axis=-1, keepdims=True)
+        new_near = _unit_towards(a[:, parent], near + push * (1.0 - sj) / den * n, l_near, b[:, parent])
+        b[:, parent] = new_near
+        a[:, cap] = new_near
+        b[:, cap] = _unit_towards(new_near, far + (new_near - near) + push * sj / den * n, l_far, far)
+    for j in range(i + 1, 3):  # the rest of the arm rides the moved end (elbow or wrist)
+        b[:, chain[j]] += b[:, cap] - far
+        a[:, chain[j]] = b[:, chain[j - 1]]
     return True

@@ -13,11 +13,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "CARRY_JUMP", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
-           "PINCH_DEPTH", "RELAX_RATE", "RELAX_STEPS", "SEAM_MIN_COS", "SEAM_SHARED_PASSES", "STRADDLE_DEPTH",
-           "STRADDLE_SAMPLES", "broad_phase", "capsule_geometry", "clear_limbs", "collide", "covered", "inline_kernel",
-           "jit_kernel", "limb_overlap", "penetration", "pinch_margin", "push_out", "release_straddles", "round_cone",
-           "round_cone_geo", "slide_seam"]
+__all__ = ["ALL_CAPSULES", "BROAD_SLACK", "CARRY_JUMP", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE",
+           "PINCH_COS", "PINCH_DEPTH", "RELAX_RATE", "RELAX_STEPS", "SEAM_LENGTH_ROUNDS", "SEAM_LENGTH_SLACK",
+           "SEAM_MIN_COS", "SEAM_RING_STRIDE", "SEAM_SHARED_PASSES", "STRADDLE_DEPTH", "STRADDLE_SAMPLES",
+           "broad_phase", "capsule_geometry", "clear_limbs", "collide", "covered", "inline_kernel", "jit_kernel",
+           "keep_seam_length", "limb_overlap", "penetration", "pinch_margin", "push_out", "release_straddles",
+           "round_cone", "round_cone_geo", "slide_seam"]
 
 F64 = NDArray[np.float64]
 #: numpy error model (no zero-division checks: every division is guarded by hand) and fast-math
@@ -568,6 +569,26 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: ND
         out[li] = worst
 
 
+@_inline
+def _push_point(points: F64, k: int, p: int, geo: F64, n_caps: int, clearance: float) -> None:  # pragma: no cover
+    """One projection of ``points[k, p]`` to ``clearance`` outside the nearest capsule of ``geo``
+    (least signed distance, the first on a tie; a NaN distance wins, as numpy's argmin: not moved)."""
+    px, py, pz = points[k, p, 0], points[k, p, 1], points[k, p, 2]
+    best, bx, by, bz = np.inf, 0.0, 0.0, 0.0
+    for c in range(n_caps):
+        d, nx, ny, nz, _t = round_cone_geo(px, py, pz, geo, c)
+        if d != d:
+            best = d
+            break
+        if d < best:
+            best, bx, by, bz = d, nx, ny, nz
+    depth = clearance - best
+    if depth > 0.0:
+        points[k, p, 0] = px + depth * bx
+        points[k, p, 1] = py + depth * by
+        points[k, p, 2] = pz + depth * bz
+
+
 @_jit
 def push_out(points: F64, a: F64, b: F64, radii: F64, clearance: float, passes: int) -> None:  # pragma: no cover
     """Move ``points`` in place to at least ``clearance`` metres outside the body at their key:
@@ -588,20 +609,7 @@ def push_out(points: F64, a: F64, b: F64, radii: F64, clearance: float, passes: 
         capsule_geometry(a[k], b[k], radii, 0.0, geo)
         for p in range(points.shape[1]):
             for _ in range(passes):
-                px, py, pz = points[k, p, 0], points[k, p, 1], points[k, p, 2]
-                best, bx, by, bz = np.inf, 0.0, 0.0, 0.0
-                for c in range(a.shape[1]):
-                    d, nx, ny, nz, _t = round_cone_geo(px, py, pz, geo, c)
-                    if d != d:  # a NaN distance wins, as numpy's argmin: the point is not moved
-                        best = d
-                        break
-                    if d < best:
-                        best, bx, by, bz = d, nx, ny, nz
-                depth = clearance - best
-                if depth > 0.0:
-                    points[k, p, 0] = px + depth * bx
-                    points[k, p, 1] = py + depth * by
-                    points[k, p, 2] = pz + depth * bz
+                _push_point(points, k, p, geo, a.shape[1], clearance)
 
 
 #: Passes of the shared push of a slid seam's covered pins (:func:`slide_seam`).
@@ -609,11 +617,18 @@ SEAM_SHARED_PASSES = 3
 #: Floor of the cosine between a pin's own normal and its capsule's shared push direction: a pin on
 #: the side of the body part moves at most twice its depth along that direction.
 SEAM_MIN_COS = 0.5
+#: Rounds of the slid seam's length pass (:func:`keep_seam_length`), and the stretch over rest it
+#: leaves a seam segment (the cloth's own strain limit lets a spring reach 3 %).
+SEAM_LENGTH_ROUNDS = 32
+SEAM_LENGTH_SLACK = 0.02
+#: Segments a ring's sweep start moves on each round (:func:`keep_seam_length`): a sweep round a
+#: closed ring ends where it started and leaves there what the body does not let it shorten.
+SEAM_RING_STRIDE = 29
 
 
 @_jit
 def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread: int,
-               wrap: bool) -> None:  # pragma: no cover
+               wrap: bool, rest: F64) -> None:  # pragma: no cover
     """Slide a seam's pins (a cape's collar) out of the body parts covering them, in place, keeping
     the seam's length: reference ``AvatarKeys.slide_seam(..., backend="numpy")``.
 
@@ -632,7 +647,10 @@ def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread
        when ``wrap``): pin ``i`` moves by ``w(|i - j|) delta_j`` for the ``j`` of largest
        ``w(|i - j|) |delta_j|`` (the first on a tie), so the step between held and carried pins is
        shared by their neighbours;
-    4. two radial projections again leave every pin at least ``clearance`` outside.
+    4. two radial projections again leave every pin at least ``clearance`` outside;
+    5. when ``rest`` is given, :func:`keep_seam_length` shortens what the moves still stretched (the
+       boundary between two body parts' groups, a stretch carried round a thigh in a crouch:
+       `dance-short`'s waistband slid with a pin-to-pin spring at 10.3 %).
 
     Parameters
     ----------
@@ -645,6 +663,9 @@ def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread
         Fall-off length in pins (0: no spreading).
     wrap : bool
         The seam is closed (a waistband).
+    rest : (S,) float64
+        Rest length of each seam segment ``i -> i + 1`` (``S = P`` when ``wrap``, the last closing
+        the ring, else ``P - 1``); empty: no length pass.
     """
     n_keys, n_pins, n_caps = points.shape[0], points.shape[1], a.shape[1]
     geo = np.empty((n_caps, _GEO_COLS))
@@ -684,8 +705,17 @@ def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread
                             points[k, p, 1] += step * uy
                             points[k, p, 2] += step * uz
     push_out(points, a, b, radii, clearance, 2)
-    if spread <= 0:
-        return
+    if spread > 0:
+        _spread_moves(points, start, spread, wrap)
+        push_out(points, a, b, radii, clearance, 2)
+    if rest.shape[0] > 0:
+        keep_seam_length(points, a, b, radii, clearance, rest, SEAM_LENGTH_ROUNDS, SEAM_LENGTH_SLACK)
+
+
+@_jit
+def _spread_moves(points: F64, start: F64, spread: int, wrap: bool) -> None:  # pragma: no cover
+    """Step 3 of :func:`slide_seam`: each pin moved by the largest fall-off-weighted move near it."""
+    n_keys, n_pins = points.shape[0], points.shape[1]
     delta = points - start
     mag = np.empty(n_pins)
     for k in range(n_keys):
@@ -702,7 +732,77 @@ def slide_seam(points: F64, a: F64, b: F64, radii: F64, clearance: float, spread
                     top, jb, wb = w * mag[j], j, w
             for e in range(3):
                 points[k, i, e] = start[k, i, e] + wb * delta[k, jb, e]
-    push_out(points, a, b, radii, clearance, 2)
+
+
+@_jit
+def keep_seam_length(points: F64, a: F64, b: F64, radii: F64, clearance: float, rest: F64, rounds: int,
+                     slack: float) -> None:  # pragma: no cover
+    """Shorten a slid seam's stretched segments, in place, keeping the pins outside the body:
+    reference ``AvatarKeys.keep_seam_length(..., backend="numpy")``.
+
+    Per key, up to ``rounds`` rounds, each a Gauss-Seidel sweep over the segments (forwards, then
+    backwards on the next round; round a closed ring each round starts :data:`SEAM_RING_STRIDE`
+    segments further on) that moves both ends of a segment longer than
+    ``(1 + slack) rest`` half-way each towards the other, then one projection
+    (:func:`push_out`'s rule) of every pin it moved. It stops after a round that moved nothing, so
+    the body has the last word; a seam the body cannot leave room for keeps its stretch, spread
+    over the segments instead of in one. A seam whose pins were not slid is at its rest lengths and
+    is not touched.
+
+    Parameters
+    ----------
+    points : (K + 1, P, 3) float64
+        Pins in seam order, modified in place.
+    a, b : (K + 1, C, 3) float64
+    radii : (C, 2) float64
+    clearance : float
+    rest : (S,) float64
+        Segment rest lengths, segment ``i`` from pin ``i`` to ``i + 1``; ``S = P`` closes the ring
+        (the last segment joins the last pin to the first), else ``S = P - 1``.
+    rounds : int
+    slack : float
+    """
+    n_keys, n_pins, n_caps = points.shape[0], points.shape[1], a.shape[1]
+    n_seg = rest.shape[0]
+    geo = np.empty((n_caps, _GEO_COLS))
+    moved = np.zeros(n_pins, dtype=np.bool_)
+    for k in range(n_keys):
+        geo_ready = False
+        for r in range(rounds):
+            any_move = False
+            start = (r * SEAM_RING_STRIDE) % n_seg if n_seg == n_pins else 0
+            for q in range(n_seg):
+                i = start + q if r % 2 == 0 else start + n_seg - 1 - q
+                if i >= n_seg:
+                    i -= n_seg
+                j = i + 1
+                if j == n_pins:
+                    j = 0
+                dx = points[k, j, 0] - points[k, i, 0]
+                dy = points[k, j, 1] - points[k, i, 1]
+                dz = points[k, j, 2] - points[k, i, 2]
+                length = math.sqrt(dx * dx + dy * dy + dz * dz)
+                limit = (1.0 + slack) * rest[i]
+                if length > limit:
+                    h = 0.5 * (length - limit) / length
+                    points[k, i, 0] += h * dx
+                    points[k, i, 1] += h * dy
+                    points[k, i, 2] += h * dz
+                    points[k, j, 0] -= h * dx
+                    points[k, j, 1] -= h * dy
+                    points[k, j, 2] -= h * dz
+                    moved[i] = True
+                    moved[j] = True
+                    any_move = True
+            if not any_move:
+                break
+            if not geo_ready:
+                capsule_geometry(a[k], b[k], radii, 0.0, geo)
+                geo_ready = True
+            for p in range(n_pins):
+                if moved[p]:
+                    _push_point(points, k, p, geo, n_caps, clearance)
+                    moved[p] = False
 
 
 #: Smallest axis fraction a push of the upper arm is levered at (:func:`clear_limbs`): the shoulder

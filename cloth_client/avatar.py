@@ -22,13 +22,16 @@ from protocol.messages import BodyInfo, body_from_body_info
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
 
-from ._contact_kernels import SEAM_MIN_COS, SEAM_SHARED_PASSES
+from ._contact_kernels import SEAM_LENGTH_ROUNDS, SEAM_LENGTH_SLACK
 from ._contact_kernels import covered as covered_kernel
+from ._contact_kernels import keep_seam_length as keep_seam_length_kernel
 from ._contact_kernels import push_out as push_out_kernel
 from ._contact_kernels import slide_seam as slide_seam_kernel
 from ._kernels import interpolate_poses as interpolate_kernel
 from .collision import CapsuleTrack, check_backend, round_cone_np
+from .leg_clearance import clear_legs
 from .limb_clearance import LIMB_CLEARANCE, LIMBS, TRUNK, clear_limbs, clear_limbs_track, limb_overlap
+from .seam import check_seam_rest, keep_seam_length_reference, push_out_reference, slide_seam_reference
 
 __all__ = [
     "LIMBS",
@@ -137,7 +140,8 @@ class AvatarKeys:
     limb_memory: F64 | None = None
 
     def pin_targets(self, pin_joint: NDArray[np.int64], pin_local: F64, axis: NDArray[np.int64] | None = None,
-                    axis_s: F64 | None = None, axis_local: F64 | None = None) -> F64:
+                    axis_s: F64 | None = None, axis_local: F64 | None = None,
+                    roll: NDArray[np.int64] | None = None) -> F64:
         """World positions ``(K + 1, P, 3)`` of pins.
 
         Parameters
@@ -155,6 +159,14 @@ class AvatarKeys:
             the joint frame ``R`` is first swung by the smallest rotation that carries this direction
             onto the current axis (the twist about the axis stays the joint's): a ring of pins round
             a bone stays square to that bone however the joints between ``J_a`` and ``J_b`` bend.
+        roll : (2,) int64, optional
+            Joints ``l, r`` of a line the ring rolls with (the skirt's waistband: the hip joints).
+            With ``axis`` and ``axis_local``, each pin's offset from its anchor is then turned by the smallest
+            rotation that carries the line's component square to the axis onto the line itself:
+            a roll about the front-back direction only (no pitch, no twist; none in a standing pose,
+            whose hip line is square to the spine), so a waistband tilts with a swinging pelvis
+            instead of being crossed by its hip as the pelvis rolls against the chest (up to 40 deg
+            in the CMU salsa takes, `60_10`, whose hip rose 97 mm through the ring).
         """
         r = self.rotations[:, pin_joint]  # (K+1, P, 3, 3)
         if axis is None or axis_s is None:
@@ -168,6 +180,15 @@ class AvatarKeys:
             u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
             c = np.einsum("kpij,pj->kpi", r, axis_local)
             offset = _swing(c, u, offset)
+            if roll is not None:
+                line = self.joints[:, roll[1]] - self.joints[:, roll[0]]  # (K+1, 3)
+                line = line / np.maximum(np.linalg.norm(line, axis=-1, keepdims=True), 1e-12)
+                line = np.broadcast_to(line[:, None], u.shape)
+                square = line - np.einsum("kpi,kpi->kp", line, u)[..., None] * u
+                norm = np.linalg.norm(square, axis=-1, keepdims=True)
+                ok = norm[..., 0] > 1e-6  # a line along the axis has no roll to follow
+                square = square / np.maximum(norm, 1e-12)
+                offset = np.where(ok[..., None], _swing(square, line, offset), offset)
         out: F64 = origin + offset
         return out
 
@@ -179,73 +200,54 @@ class AvatarKeys:
     def push_out(self, points: F64, clearance: float, backend: str = "numba") -> F64:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
         (two projection passes over the nearest capsule); ``backend="numpy"`` runs the plain
-        reference of the kernel."""
+        reference of the kernel (:func:`cloth_client.seam.push_out_reference`)."""
         check_backend(backend)
         self._check_points(points)
-        if backend == "numba":
-            moved = np.array(points, dtype=np.float64, order="C")
-            push_out_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
-                            np.ascontiguousarray(self.track.radii), float(clearance), 2)
-            return moved
-        out = points.copy()
-        radii = self.track.radii
-        for k in range(len(out)):
-            for _ in range(2):
-                d, n, _t = round_cone_np(out[k], self.track.a[k], self.track.b[k], radii[:, 0], radii[:, 1])
-                c = np.argmin(d, axis=1)
-                depth = clearance - d[np.arange(len(c)), c]
-                inside = depth > 0
-                out[k, inside] += depth[inside, None] * n[inside, c[inside]]
-        return out
+        if backend == "numpy":
+            return push_out_reference(self.track, points, clearance)
+        moved = np.array(points, dtype=np.float64, order="C")
+        push_out_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
+                        np.ascontiguousarray(self.track.radii), float(clearance), 2)
+        return moved
 
     def slide_seam(self, points: F64, clearance: float, spread: int = 0, wrap: bool = False,
-                   backend: str = "numba") -> F64:
+                   rest: F64 | None = None, backend: str = "numba") -> F64:
         """``points (K + 1, P, 3)``, pins in seam order, slid out of the body parts covering them:
         each part's covered pins carried together along one direction, the move spread over
-        ``spread`` pins either side with a linear fall-off (round the seam when ``wrap``), then
-        pushed radially to ``clearance`` (``_contact_kernels.slide_seam`` documents the rule;
-        ``backend="numpy"`` runs this plain reference)."""
+        ``spread`` pins either side with a linear fall-off (round the seam when ``wrap``), pushed
+        radially to ``clearance``, then, given the seam's segment rest lengths ``rest (S,)`` (``S =
+        P`` when ``wrap``, else ``P - 1``), what is still stretched shortened
+        (:meth:`keep_seam_length`). ``_contact_kernels.slide_seam`` documents the rule;
+        ``backend="numpy"`` runs the plain reference (:func:`cloth_client.seam.slide_seam_reference`)."""
         check_backend(backend)
         self._check_points(points)
         if spread < 0:
             raise ValueError(f"spread must be >= 0, got {spread}")
-        if backend == "numba":
-            moved = np.array(points, dtype=np.float64, order="C")
-            slide_seam_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
-                              np.ascontiguousarray(self.track.radii), float(clearance), int(spread), bool(wrap))
-            return moved
-        start = np.array(points, dtype=np.float64)
-        out = start.copy()
-        r0, r1 = self.track.radii[:, 0], self.track.radii[:, 1]
-        for k in range(len(out)):
-            a, b = self.track.a[k], self.track.b[k]
-            d, n, _t = round_cone_np(start[k], a, b, r0, r1)  # (P, C)
-            near = np.argmin(d, axis=1)
-            depth = clearance - d[np.arange(len(near)), near]
-            for c in np.unique(near[depth > 0.0]):
-                sel = (near == c) & (depth > 0.0)
-                u = (depth[sel, None] * n[sel, c]).sum(axis=0)
-                norm = float(np.linalg.norm(u))
-                if not norm > 0.0:
-                    continue
-                u /= norm
-                for _ in range(SEAM_SHARED_PASSES):
-                    dd, nn, _t = round_cone_np(out[k, sel], a[c:c + 1], b[c:c + 1], r0[c:c + 1], r1[c:c + 1])
-                    step = np.maximum(clearance - dd[:, 0], 0.0) / np.maximum(nn[:, 0] @ u, SEAM_MIN_COS)
-                    out[k, sel] += step[:, None] * u
-        out = self.push_out(out, clearance, backend="numpy")
-        if spread == 0:
-            return out
-        delta = out - start
-        idx = np.arange(start.shape[1])
-        gap = np.abs(idx[:, None] - idx[None, :])
-        if wrap:
-            gap = np.minimum(gap, len(idx) - gap)
-        w = np.maximum(0.0, 1.0 - gap / (spread + 1.0))  # (P, P)
-        for k in range(len(out)):
-            j = np.argmax(w * np.linalg.norm(delta[k], axis=1)[None, :], axis=1)
-            out[k] = start[k] + w[idx, j][:, None] * delta[k, j]
-        return self.push_out(out, clearance, backend="numpy")
+        seg = check_seam_rest(points.shape[1], rest, wrap)
+        if backend == "numpy":
+            return slide_seam_reference(self.track, points, clearance, spread, wrap, seg)
+        moved = np.array(points, dtype=np.float64, order="C")
+        slide_seam_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
+                          np.ascontiguousarray(self.track.radii), float(clearance), int(spread), bool(wrap), seg)
+        return moved
+
+    def keep_seam_length(self, points: F64, clearance: float, rest: F64, rounds: int = SEAM_LENGTH_ROUNDS,
+                         slack: float = SEAM_LENGTH_SLACK, backend: str = "numba") -> F64:
+        """``points (K + 1, P, 3)``, a seam's pins in order, with every segment ``i -> i + 1`` longer
+        than ``(1 + slack) rest[i]`` shortened and the pins kept ``clearance`` outside the body
+        (``rest (S,)``: ``S = P`` closes the ring). ``_contact_kernels.keep_seam_length``
+        documents the rule; ``backend="numpy"`` runs the plain reference
+        (:func:`cloth_client.seam.keep_seam_length_reference`)."""
+        check_backend(backend)
+        self._check_points(points)
+        seg = check_seam_rest(points.shape[1], rest, wrap=np.size(rest) == points.shape[1])
+        if backend == "numpy":
+            return keep_seam_length_reference(self.track, points, clearance, seg, rounds, slack)
+        out = np.array(points, dtype=np.float64, order="C")
+        keep_seam_length_kernel(out, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
+                                np.ascontiguousarray(self.track.radii), float(clearance), seg, int(rounds),
+                                float(slack))
+        return out
 
     def covered(self, points: F64, margin: float | F64, backend: str = "numba") -> NDArray[np.bool_]:
         """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``
@@ -280,7 +282,9 @@ def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE,
               limb_memory: F64 | None = None) -> AvatarKeys:
     """Capsules and joint frames of a pose sequence ``(K + 1, P)`` (one FK call for all keys).
 
-    With ``clearance`` (metres; None: the recorded limbs) sunk upper arms, forearms and hands are turned out of
+    With ``clearance`` (metres; None: the recorded limbs) knees that come within two cloth margins
+    of each other are turned apart (:func:`~cloth_client.leg_clearance.clear_legs`), then sunk
+    upper arms, forearms and hands are turned out of
     the trunk (:func:`~cloth_client.limb_clearance.clear_limbs_track`, continuing from
     ``limb_memory``, the previous step's :attr:`AvatarKeys.limb_memory`, whose last key is
     ``poses[0]``); ``joints`` stay the recorded ones.
@@ -290,18 +294,21 @@ def pose_keys(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE,
     b = joints[:, CAPSULE_JOINTS[:, 1]]
     memory = None
     if clearance is not None:
+        a, b = clear_legs(a, b, body.capsule_radii)
         a, b, memory = clear_limbs_track(a, b, body.capsule_radii, limb_memory, clearance,
                                          first_given=limb_memory is not None)
     return AvatarKeys(CapsuleTrack(a, b, body.capsule_radii), joints, rot, memory)
 
 
 def avatar_capsules(body: Body, poses: F64, clearance: float | None = LIMB_CLEARANCE) -> tuple[F64, F64]:
-    """Capsule endpoints of the avatar the cloth is dressed on: :func:`capsule_endpoints` with sunk
-    upper arms, forearms and hands turned out of the trunk (``(N, C, 3)``, or ``(C, 3)`` for one pose ``(P,)``;
-    the poses are taken as consecutive keys, each continuing the previous one's corrections)."""
+    """Capsule endpoints of the avatar the cloth is dressed on: :func:`capsule_endpoints` with the
+    knees kept apart and sunk upper arms, forearms and hands turned out of the trunk (``(N, C, 3)``,
+    or ``(C, 3)`` for one pose ``(P,)``; the poses are taken as consecutive keys, each continuing
+    the previous one's corrections)."""
     a, b = capsule_endpoints(body, poses)
     if clearance is None:
         return a, b
+    a, b = clear_legs(a, b, body.capsule_radii)
     return clear_limbs(a, b, body.capsule_radii, clearance)
 
 

@@ -21,7 +21,8 @@ it ``(pose, time)`` pairs as they arrive:
   ``seam_reach``) and their neighbours go for that step (they collide like free
   cloth) unless more than ``slide_fraction`` of it is covered, when it slides too (pushing a
   waistband's pins out to the nearest surface sends neighbours to opposite sides of a thigh: the
-  rest of the pins carries the garment meanwhile);
+  rest of the pins carries the garment meanwhile); what a slide still stretches of the seam is
+  shortened again (``DriverConfig.keep_seam_length``);
 * a non-finite value (never expected) re-dresses the garment and is counted.
 """
 
@@ -79,7 +80,9 @@ class DriverConfig:
     (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs), ``ghost_depth`` /
     ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again; a slid seam's
     move spread along ``seam_spread`` metres of the seam either side (``AvatarKeys.slide_seam``,
-    rounded to whole pins: 8 at 2,000 particles; 0: none)."""
+    rounded to whole pins: 8 at 2,000 particles; 0: none), and with ``keep_seam_length`` what the
+    slide still stretched shortened again (``AvatarKeys.keep_seam_length``; False: session 19's
+    slide)."""
 
     key_dt: float = 1.0 / 240.0
     dress_s: float = 0.6
@@ -94,6 +97,7 @@ class DriverConfig:
     ghost_depth: float = 0.02
     ghost_clear: float = -0.03
     limb_clearance: float | None = LIMB_CLEARANCE
+    keep_seam_length: bool = True
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -175,6 +179,8 @@ class ClothDriver:
         seam = garment.rest[garment.pin_index]
         spacing = float(np.linalg.norm(np.diff(seam, axis=0), axis=1).mean()) if len(seam) > 1 else 0.0
         self._spread_pins = round(self.config.seam_spread / spacing) if spacing > 0.0 else 0
+        ring = np.vstack([seam, seam[:1]]) if garment.wrap else seam
+        self._seam_rest = np.linalg.norm(np.diff(ring, axis=0), axis=1)  # segment rest lengths of the seam
         self._body_end: tuple[F64, F64] | None = None
         self._ghost = np.zeros(len(LIMBS), dtype=bool)
         self._overlap: F64 | None = None
@@ -298,12 +304,13 @@ class ClothDriver:
                          self.config.limb_clearance, self._limb_memory)
         self._limb_memory = keys.limb_memory
         g = self.garment
-        pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
+        pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local, g.pin_roll)
         released = self._widen(keys.covered(pins, self._seam_margin))
         if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
             # slide the seam over the body part that covers it (always for a collar; for a
             # waistband when most of it is covered, instead of letting the garment go)
-            pins = keys.slide_seam(pins, self.model.params.margin, self._spread_pins, self.garment.wrap)
+            pins = keys.slide_seam(pins, self.model.params.margin, self._spread_pins, self.garment.wrap,
+                                   self._seam_rest if self.config.keep_seam_length else None)
             released[:] = False
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s

@@ -9,7 +9,8 @@ that it clears every body capsule by a margin. The grid gives
 * triangles for rendering, air drag and per-particle mass (density x 1/3 of the adjacent area);
 * pins: top-row particles, each attached to a joint with a fixed offset in that joint's frame (the
   cape's collar, between the roots of the arms and clear of the shoulders, to the chest; the
-  skirt's waistband, all round the natural waist, to the spine, anchored on the abdomen's axis);
+  skirt's waistband, all round the natural waist, to the spine, anchored on the abdomen's axis and
+  rolling with the hip line);
 * long-range attachments: every particle's nearest pin and its rest distance along the cloth
   (shortest path over structural and shear springs), which bound how far the cloth can sag;
 * the order in which strain limiting visits the structural springs: by graph distance from the
@@ -110,6 +111,9 @@ class Garment:
         hand, which would otherwise throw a projected pin to the far side of a thin limb).
     pose : (P_pose,) float64
         The body pose the rest shape was built in.
+    pin_roll : (2,) int64 or None
+        Joints of the line an axis-anchored ring of pins rolls with (the skirt's waistband: the hip
+        joints; :meth:`~cloth_client.avatar.AvatarKeys.pin_targets`), None for none.
     """
 
     kind: str
@@ -137,6 +141,7 @@ class Garment:
     wrap: bool
     pose: F64
     seam: str = "slide"
+    pin_roll: I64 | None = None
 
     def __post_init__(self) -> None:
         for value in self.__dict__.values():
@@ -219,11 +224,14 @@ def _limit_batches(n: int, springs: I64, pins: I64) -> tuple[I64, I64]:
 
 def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | NDArray[np.int64],
            density: float, pin_cols: NDArray[np.bool_] | None = None, seam: str = "slide",
-           axis: tuple[str, str, float] | None = None) -> Garment:
+           axis: tuple[str, str, float] | None = None, roll: tuple[str, str] | None = None) -> Garment:
     """Assemble a :class:`Garment` from grid positions ``pos (rows, cols, 3)``; the top row's
     particles in ``pin_cols`` (default: all) are pinned to ``joint`` (a name, or one joint index per
     top-row particle), anchored at that joint or, with ``axis = (joint_a, joint_b, s)``, at the point
-    ``s`` of the way from ``joint_a`` to ``joint_b``."""
+    ``s`` of the way from ``joint_a`` to ``joint_b``, rolling with the line from joint ``roll[0]`` to
+    ``roll[1]`` if given (with ``axis`` only)."""
+    if roll is not None and axis is None:
+        raise ValueError("a ring rolls with a line only when anchored on an axis")
     rows, cols = pos.shape[:2]
     x = pos.reshape(-1, 3)
     structural, shear, bend, tris = grid_topology(rows, cols, wrap)
@@ -263,6 +271,7 @@ def _build(kind: str, pos: F64, wrap: bool, body: Body, pose: F64, joint: str | 
         pin_axis_local=axis_local,
         limit_springs=lim, limit_rest=rest(lim), limit_batches=ptr, anchor=source.astype(np.int64), anchor_dist=dist,
         grid_shape=(rows, cols), wrap=wrap, pose=pose.copy(), seam=seam,
+        pin_roll=None if roll is None else np.array([JOINT_INDEX[roll[0]], JOINT_INDEX[roll[1]]], dtype=np.int64),
     )
 
 
@@ -338,11 +347,13 @@ def make_cape(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: float
 
 
 def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: float | None = None,
-               flare_deg: float = 22.0, density: float = DEFAULT_DENSITY, hip_ease: float = 0.0) -> Garment:
+               flare_deg: float = 22.0, density: float = DEFAULT_DENSITY, hip_ease: float = 0.0,
+               roll_with_hips: bool = True) -> Garment:
     """An A-line skirt hanging from the natural waist to below the knees, inside the arms.
 
     The waistband is a ring round the abdomen at the natural waist, anchored on the abdomen's axis
-    (pelvis to chest joint) and turned with the spine frame swung onto that axis: at the spine
+    (pelvis to chest joint) and turned with the spine frame swung onto that axis, rolling with the
+    hip line (``roll_with_hips``): at the spine
     joint's height or just above it, as low as keeps it :data:`REST_CLEARANCE` from the pelvis and
     thighs in 3D as well as :data:`COLLAR_CLEARANCE` from the trunk in its plane (the pelvis
     capsule's hip-joint spheres reach up to the spine joint's height: the in-plane probe alone left
@@ -368,6 +379,10 @@ def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: floa
         the hanging arms leave it: a bow or a hip swing tilts the pelvis inside the ring and needs
         a longer circumference than standing. 0 by default: 2 cm cut the skirt sweep's frames over
         10 % strain by a fifth but not the recordings over it (docs/CLOTH.md, session 7).
+    roll_with_hips : bool
+        The waistband rolls with the hip line (``Garment.pin_roll``; session 20): square to the
+        abdomen's axis otherwise, it is crossed by the high hip of a pelvis rolled against the
+        chest.
     """
     pose = standing_pose(body)
     joints, _ = fk_global(pose, body)
@@ -409,7 +424,7 @@ def make_skirt(body: Body, n_particles: int = DEFAULT_PARTICLES, *, length: floa
     radius = np.maximum(np.minimum(radius, arm), clear)
     pos = np.stack([centre[0] + radius * dirs[:cols, 0], ys, centre[2] + radius * dirs[:cols, 2]], axis=-1)
     return _build("skirt", pos, True, body, pose, "spine", density, seam="release",
-                  axis=("pelvis", "chest", float(s_waist)))
+                  axis=("pelvis", "chest", float(s_waist)), roll=("l_hip", "r_hip") if roll_with_hips else None)
 
 
 def make_sheet(rows: int, cols: int, spacing: float = 0.02, *, height: float = 2.0,

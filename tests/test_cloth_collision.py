@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from cloth_client import _kernels as K
+from cloth_client._contact_kernels import SEAM_LENGTH_SLACK
 from cloth_client.avatar import AvatarKeys, capsule_endpoints, pose_keys
 from cloth_client.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
@@ -403,18 +404,53 @@ def _bent_keys_and_points(seed: int, n: int):  # type: ignore[no-untyped-def]
     return body, keys, pts
 
 
-@pytest.mark.parametrize(("spread", "wrap"), [(0, False), (6, False), (6, True)])
-def test_slide_seam_kernel_matches_numpy(spread: int, wrap: bool) -> None:
-    """The numba seam slide equals its numpy reference, leaves its input alone and clears the body."""
+def _segments(p: np.ndarray, wrap: bool) -> np.ndarray:
+    """Segment lengths ``(K + 1, S)`` of seams ``p (K + 1, P, 3)``, closed round when ``wrap``."""
+    ring = np.concatenate([p, p[:, :1]], axis=1) if wrap else p
+    out: np.ndarray = np.linalg.norm(np.diff(ring, axis=1), axis=-1)
+    return out
+
+
+@pytest.mark.parametrize(("spread", "wrap", "keep"), [(0, False, False), (6, False, False), (6, True, False),
+                                                      (0, False, True), (6, True, True)])
+def test_slide_seam_kernel_matches_numpy(spread: int, wrap: bool, keep: bool) -> None:
+    """The numba seam slide equals its numpy reference, leaves its input alone and clears the body;
+    with the seam's rest lengths (here shorter than the random seam's) also the length pass."""
     _body, keys, pts = _bent_keys_and_points(9, 300)
+    rest = 0.8 * _segments(pts, wrap)[0] if keep else None
     before = pts.copy()
-    got = keys.slide_seam(pts, 0.006, spread, wrap)
-    ref = keys.slide_seam(pts, 0.006, spread, wrap, backend="numpy")
+    got = keys.slide_seam(pts, 0.006, spread, wrap, rest)
+    ref = keys.slide_seam(pts, 0.006, spread, wrap, rest, backend="numpy")
     np.testing.assert_array_equal(pts, before)
     assert (np.linalg.norm(ref - pts, axis=-1) > 1e-9).sum() > 40
     np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
+    if keep:
+        plain = keys.slide_seam(pts, 0.006, spread, wrap, backend="numpy")
+        assert np.abs(ref - plain).max() > 0.01  # the length pass moved the pins
     with pytest.raises(ValueError, match="spread"):
         keys.slide_seam(pts, 0.006, -1)
+    with pytest.raises(ValueError, match="rest"):
+        keys.slide_seam(pts, 0.006, spread, wrap, np.ones(pts.shape[1] - 2))
+
+
+@pytest.mark.parametrize("wrap", [False, True])
+def test_keep_seam_length_kernel_matches_numpy(wrap: bool) -> None:
+    """The length pass's kernel equals its numpy reference on random seams round a bent arm whose
+    rest lengths are 70-100 % of their segments, leaves its input alone, and a seam already within
+    its rest lengths comes back unchanged."""
+    _body, keys, pts = _bent_keys_and_points(4, 200)
+    seg = _segments(pts, wrap)[0]
+    rest = seg * np.random.default_rng(5).uniform(0.7, 1.0, len(seg))
+    before = pts.copy()
+    got = keys.keep_seam_length(pts, 0.006, rest)
+    ref = keys.keep_seam_length(pts, 0.006, rest, backend="numpy")
+    np.testing.assert_array_equal(pts, before)
+    np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
+    assert np.abs(ref - pts).max() > 0.01
+    assert (_segments(ref, wrap) / rest).max() < (_segments(pts, wrap) / rest).max()
+    np.testing.assert_array_equal(keys.keep_seam_length(pts, 0.006, 1.1 * _segments(pts, wrap).max(axis=0)), pts)
+    with pytest.raises(ValueError, match="rest"):
+        keys.keep_seam_length(pts, 0.006, rest[:-3])
 
 
 def _seam_under_a_ball(depth: float) -> tuple[AvatarKeys, np.ndarray]:
@@ -449,8 +485,16 @@ def test_slid_seam_keeps_its_length_under_a_body_part() -> None:
         assert clearance(slid) >= 0.006 - 1e-9
         assert worst_strain(slid) < 0.1, backend
         assert worst_strain(keys.slide_seam(seam, 0.006, 0, backend=backend)) > 0.1  # the spread matters
+        # the length pass (given the rest lengths) shortens what the slide left stretched: the spread
+        # slide's 3.5 % to within its slack, the unspread slide's step (over 10 %) by half
+        for spread, bound in ((8, SEAM_LENGTH_SLACK + 0.005), (0, 0.6 * worst_strain(keys.slide_seam(seam, 0.006, 0)))):
+            kept = keys.slide_seam(seam, 0.006, spread, rest=np.full(40, 0.01), backend=backend)
+            assert clearance(kept) >= 0.006 - 1e-9
+            plain = worst_strain(keys.slide_seam(seam, 0.006, spread))
+            assert worst_strain(kept) < min(bound, plain), (backend, spread)
     free, _ = _seam_under_a_ball(-0.01)  # the ball 1 cm clear of the seam: nothing moves
     np.testing.assert_allclose(free.slide_seam(seam, 0.006, 8), seam, atol=0)
+    np.testing.assert_allclose(free.slide_seam(seam, 0.006, 8, rest=np.full(40, 0.01)), seam, atol=0)
 
 
 def test_covered_kernel_matches_numpy() -> None:

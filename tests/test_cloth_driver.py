@@ -18,9 +18,9 @@ from cloth_client.avatar import (
     rigid_root_delta,
 )
 from cloth_client.cloth import ClothParams, build_model, initial_state, step, structural_strain, tethers_held
-from cloth_client.collision import penetration_np
+from cloth_client.collision import penetration_np, round_cone_np
 from cloth_client.driver import ClothDriver, DriverConfig
-from cloth_client.garment import DEFAULT_DENSITY, grid_topology, make_cape, make_garment, make_skirt
+from cloth_client.garment import DEFAULT_DENSITY, Garment, grid_topology, make_cape, make_garment, make_skirt
 from protocol.kinematics import fk
 from protocol.messages import body_from_body_info, body_info_from_body
 from protocol.rotations import rotvec_to_matrix
@@ -313,6 +313,52 @@ def test_waistband_stays_square_to_the_abdomen_when_the_back_bends() -> None:
         np.testing.assert_allclose(np.linalg.norm(t[j][:, None] - t[j][None], axis=-1), d0, atol=1e-9)  # rigid
         np.testing.assert_allclose(axial(j), axial(0), atol=1e-9)  # square to the axis, same radii
         assert np.abs(t[j] - plain[j]).max() > 0.005  # the spine frame alone would tilt it
+
+
+def test_waistband_rolls_with_the_hips_against_the_chest() -> None:
+    """A pelvis rolled against the chest (a salsa hip: the root rolled 0.2 rad, the spine rolled
+    back) tilts the waistband with the hip line: rigidly, about the front-back direction only (the
+    front and back pins stay where the square ring has them), the side pins along the hip line, and
+    the high hip stays beyond the cloth margin of the ring, which the square ring lets it cross
+    (its pins would be covered and released). Standing, the two rings are the same."""
+    rolled, square = make_skirt(BODY, 500), make_skirt(BODY, 500, roll_with_hips=False)
+    assert square.pin_roll is None and rolled.pin_roll is not None
+    pose = standing_pose(BODY)
+    hip = pose.copy()
+    hip[3:6] = [0.0, 0.0, 0.2]
+    k = 3 + 3 * ROT_JOINTS.index("spine")
+    hip[k:k + 3] = [0.0, 0.0, -0.2]
+    keys = pose_keys(BODY, np.stack([pose, hip]))
+
+    def targets(g: Garment) -> np.ndarray:
+        out: np.ndarray = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local,
+                                           g.pin_roll)
+        return out
+
+    t, flat = targets(rolled), targets(square)
+    np.testing.assert_allclose(t[0], rolled.rest[rolled.pin_index], atol=1e-12)
+    np.testing.assert_allclose(t[0], flat[0], atol=1e-12)
+    d0 = np.linalg.norm(t[0][:, None] - t[0][None], axis=-1)
+    np.testing.assert_allclose(np.linalg.norm(t[1][:, None] - t[1][None], axis=-1), d0, atol=1e-9)  # rigid
+    cols = rolled.grid_shape[1]
+    front, back = 0, cols // 2
+    np.testing.assert_allclose(t[1][[front, back]], flat[1][[front, back]], atol=2e-3)  # no pitch, no twist
+    j = keys.joints[1]
+    s = rolled.pin_axis_s[0]
+    anchor = (1.0 - s) * j[JOINT_INDEX["pelvis"]] + s * j[JOINT_INDEX["chest"]]
+    line = j[JOINT_INDEX["r_hip"]] - j[JOINT_INDEX["l_hip"]]
+    for side in (cols // 4, 3 * cols // 4):
+        off = t[1][side] - anchor
+        assert abs(off @ line) / (np.linalg.norm(off) * np.linalg.norm(line)) > 0.99
+    c = CAPSULE_INDEX["pelvis"]
+
+    def hip_gap(p: np.ndarray) -> float:
+        d, _, _ = round_cone_np(p, keys.track.a[1, c:c + 1], keys.track.b[1, c:c + 1], BODY.capsule_radii[c:c + 1, 0],
+                                BODY.capsule_radii[c:c + 1, 1])
+        return float(d.min())
+
+    margin = ClothParams().margin
+    assert hip_gap(t[1]) > margin > hip_gap(flat[1])
 
 
 def _swing_strains(rate: float, config: DriverConfig = FAST) -> tuple[list[float], bool]:

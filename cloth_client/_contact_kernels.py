@@ -621,9 +621,10 @@ SEAM_MIN_COS = 0.5
 #: leaves a seam segment (the cloth's own strain limit lets a spring reach 3 %).
 SEAM_LENGTH_ROUNDS = 32
 SEAM_LENGTH_SLACK = 0.02
-#: Segments a ring's sweep start moves on each round (:func:`keep_seam_length`): a sweep round a
-#: closed ring ends where it started and leaves there what the body does not let it shorten.
-SEAM_RING_STRIDE = 29
+#: Segments a ring's sweep start moves on each round, modulo the ring (:func:`keep_seam_length`): a
+#: sweep round a closed ring ends where it started and leaves there what the body does not let it
+#: shorten. A prime larger than any seam, so the start moves on every round on rings of any size.
+SEAM_RING_STRIDE = 1009
 
 
 @_jit

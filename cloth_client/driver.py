@@ -77,7 +77,8 @@ GHOST_RADIUS = 1e-3  # radius of a limb that is sunk into the trunk (m); see Clo
 class DriverConfig:
     """Timing of dressing, interpolation and resets (seconds; damping in 1/s); the sunk-limb rules
     (metres): ``limb_clearance`` the gap sunk upper arms, forearms and hands are turned out to
-    (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs), ``ghost_depth`` /
+    (:mod:`cloth_client.limb_clearance`; None keeps the recorded limbs, the legs too, which are
+    otherwise kept :data:`~cloth_client.leg_clearance.LEG_CLEARANCE` apart), ``ghost_depth`` /
     ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again; a slid seam's
     move spread along ``seam_spread`` metres of the seam either side (``AvatarKeys.slide_seam``,
     rounded to whole pins: 8 at 2,000 particles; 0: none), and with ``keep_seam_length`` what the

@@ -315,6 +315,20 @@ def test_waistband_stays_square_to_the_abdomen_when_the_back_bends() -> None:
         assert np.abs(t[j] - plain[j]).max() > 0.005  # the spine frame alone would tilt it
 
 
+@pytest.mark.parametrize("kind", ["cape", "skirt"])
+def test_driver_hands_the_seam_its_rest_lengths(kind: str) -> None:
+    """The slide's length pass gets one rest length per seam segment (the skirt's ring closed),
+    the pins' spacing in the garment; ``keep_seam_length=False`` keeps session 19's slide."""
+    g = make_garment(kind, BODY, 500)
+    d = ClothDriver(BODY, g, config=FAST)
+    seam = g.rest[g.pin_index]
+    ring = np.vstack([seam, seam[:1]]) if g.wrap else seam
+    assert d._seam_rest.shape == (len(seam) if g.wrap else len(seam) - 1,)
+    np.testing.assert_allclose(d._seam_rest, np.linalg.norm(np.diff(ring, axis=0), axis=1))
+    assert np.all(d._seam_rest > 0.0) and (kind == "skirt") == g.wrap
+    assert DriverConfig().keep_seam_length and not replace(FAST, keep_seam_length=False).keep_seam_length
+
+
 def test_waistband_rolls_with_the_hips_against_the_chest() -> None:
     """A pelvis rolled against the chest (a salsa hip: the root rolled 0.2 rad, the spine rolled
     back) tilts the waistband with the hip line: rigidly, about the front-back direction only (the

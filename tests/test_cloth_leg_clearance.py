@@ -58,9 +58,9 @@ def test_knees_that_nearly_touch_are_turned_apart_about_the_hips() -> None:
 
 
 def test_the_push_grows_continuously_and_is_capped() -> None:
-    """The turn-out grows from zero as the knees come within the clearance, without a jump, and
-    legs that cross deep keep the rest of their overlap: no closest point moves more than
-    ``LEG_MAX_PUSH``, no toe more than ``LEG_MAX_TOE``."""
+    """The turn-out grows from zero as the knees come within the clearance, without a jump while the
+    legs are side by side; no knee moves more than ``LEG_MAX_PUSH``; and however deep the legs
+    cross (past 0.1 rad of this path the closest points swap sides) no gap ever gets smaller."""
     angles = np.linspace(0.0, 0.12, 241)
     poses = np.stack([_knees_in(t) for t in angles])
     a, b = capsule_endpoints(BODY, poses)
@@ -68,12 +68,38 @@ def test_the_push_grows_continuously_and_is_capped() -> None:
     move = np.linalg.norm(b2 - b, axis=-1)  # (N, C)
     knee = move[:, LEGS[0, 0]]
     assert knee[0] == 0.0 and knee.max() > 0.005
-    assert np.abs(np.diff(knee)).max() < 1e-3  # 0.5 mrad steps: sub-millimetre changes, no jump
-    toe = move[:, LEGS[:, 2]].max(axis=1)
-    assert toe.max() <= LEG_MAX_TOE + 1e-9
-    assert knee.max() <= 2.0 * LEG_MAX_PUSH  # the knee is below the closest point at most this far
-    gap = leg_gap(a2, b2, BODY.capsule_radii)[0]
-    assert gap[-1] < 0.0  # a deep crossing is not undone
+    side_by_side = angles <= 0.09
+    assert np.abs(np.diff(knee[side_by_side])).max() < 1e-3  # 0.5 mrad steps: sub-millimetre changes
+    assert knee.max() <= LEG_MAX_PUSH + 1e-9
+    before, after = leg_gap(a, b, BODY.capsule_radii)[0], leg_gap(a2, b2, BODY.capsule_radii)[0]
+    assert np.all(after >= before - 1e-12)
+    assert after[side_by_side].min() > before[side_by_side].min() + 0.015  # deep but side by side: opened
+    assert after[-1] < 0.0  # a deep crossing is not undone
+
+
+def test_the_toe_cap_holds() -> None:
+    """With a knee cap the toe cap would not bind first, the toe still moves at most ``max_toe``."""
+    poses = np.stack([_knees_in(t) for t in np.linspace(0.04, 0.09, 21)])
+    a, b = capsule_endpoints(BODY, poses)
+    _a2, b2 = clear_legs(a, b, BODY.capsule_radii, max_push=0.05, max_toe=0.02)
+    toe = np.linalg.norm(b2 - b, axis=-1)[:, LEGS[:, 2]]
+    assert toe.max() <= 0.02 + 1e-9 and toe.max() > 0.019
+    assert LEG_MAX_TOE > LEG_MAX_PUSH
+
+
+def test_crossed_legs_are_turned_apart_the_way_they_cross() -> None:
+    """A cross-step (the left leg's closest point to the right of the right leg's): the legs turn
+    further apart the way they are crossed, not into each other."""
+    pose = standing_pose(BODY)
+    for joint, rv in (("l_hip", [-0.12, 0.0, -0.49]), ("r_hip", [-0.5, 0.0, -0.23]), ("r_knee", [0.71, 0.0, 0.0])):
+        k = 3 + 3 * ROT_JOINTS.index(joint)
+        pose[k:k + 3] = rv
+    a, b = _ends(pose)
+    gap, left, right = leg_gap(a, b, BODY.capsule_radii)
+    lateral = a[0, CAPSULE_INDEX["pelvis"]] - b[0, CAPSULE_INDEX["pelvis"]]
+    assert gap[0] < 0.0 and (left[0] - right[0]) @ lateral < 0.0  # crossed
+    a2, b2 = clear_legs(a, b, BODY.capsule_radii)
+    assert leg_gap(a2, b2, BODY.capsule_radii)[0][0] > gap[0] + 0.003  # -27 -> -22 mm (-53 turned the wrong way)
 
 
 def test_the_avatar_the_cloth_sees_has_the_knees_apart() -> None:

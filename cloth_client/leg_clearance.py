@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from protocol.rotations import rotvec_to_matrix
 from protocol.skeleton import CAPSULE_INDEX
 
 __all__ = ["CROSS_BLEND", "LEGS", "LEG_CLEARANCE", "LEG_MAX_PUSH", "LEG_MAX_TOE", "LEG_TOLERANCE", "clear_legs",
@@ -182,15 +183,8 @@ def clear_legs(a: F64, b: F64, radii: F64, clearance: float = LEG_CLEARANCE, max
             angle = np.where(norm[:, 0] > 1e-9, angle, 0.0)
             axis = axis / np.maximum(norm, 1e-12)
             ends = np.concatenate([a2[active][:, LEGS[side]], b2[active][:, LEGS[side]]], axis=1)  # (m, 6, 3)
-            turned = hip[:, None] + _rotate(axis, angle, ends - hip[:, None])
+            turn = rotvec_to_matrix(axis * angle[:, None])  # (m, 3, 3)
+            turned = hip[:, None] + np.einsum("nij,nkj->nki", turn, ends - hip[:, None])
             a2[active[:, None], LEGS[side][None, :]] = turned[:, :3]
             b2[active[:, None], LEGS[side][None, :]] = turned[:, 3:]
     return (a2[0], b2[0]) if one else (a2, b2)
-
-
-def _rotate(axis: F64, angle: F64, y: F64) -> F64:
-    """``y (N, K, 3)`` turned by ``angle (N,)`` radians about unit ``axis (N, 3)`` (Rodrigues)."""
-    c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
-    k = axis[:, None, :]
-    out: F64 = y * c + np.cross(k, y) * s + k * np.einsum("nj,nkj->nk", axis, y)[..., None] * (1.0 - c)
-    return out

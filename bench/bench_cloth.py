@@ -41,6 +41,7 @@ from _host import host_probe  # noqa: E402  (bench/ is the script's folder)
 
 from cloth_client.cloth import ClothParams, build_model, initial_state, step  # noqa: E402
 from cloth_client.collision import CapsuleTrack  # noqa: E402
+from cloth_client.driver import DriverConfig  # noqa: E402
 from cloth_client.garment import DEFAULT_PARTICLES, make_sheet  # noqa: E402
 from cloth_client.offline import simulate_motion  # noqa: E402
 from protocol.mocap_data import index_entries, mocap_root  # noqa: E402
@@ -78,11 +79,12 @@ def speed(rt_particles: tuple[int, ...] = (2000, 5000), overrides: dict[str, Any
         out["free_sheet"].append(row)
         print(f"  sheet {side}x{side}: {row}", flush=True)
     motion = load_motion(mocap_root() / RT_RECORDING, fps=60.0)  # 60 Hz input, as in the target
+    params, config = split_overrides(overrides)
     out["realtime"] = []
     for garment in ("cape", "skirt"):
         for n in rt_particles:
             r = simulate_motion(motion, garment, particles=n, max_frames=1200,  # 20 s
-                                params=ClothParams(**(overrides or {})))
+                                params=params, config=config)
             row = {k: r[k] for k in ("garment", "particles", "realtime_factor", "steps_per_s", "sim_time_s",
                                      "max_penetration_mm", "max_strain")}
             out["realtime"].append(row)
@@ -91,20 +93,22 @@ def speed(rt_particles: tuple[int, ...] = (2000, 5000), overrides: dict[str, Any
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:
-    """``["key=value", ...]`` -> ``ClothParams`` overrides, each value parsed as its field's type.
+    """``["key=value", ...]`` -> overrides, each value parsed as its field's type: ``key`` a
+    ``ClothParams`` field, ``cfg.key`` a ``DriverConfig`` field.
 
     Raises
     ------
     SystemExit
         On an unknown field or a value of the wrong type.
     """
-    fields = {f.name: f for f in dataclasses.fields(ClothParams)}
+    fields = {f.name for f in dataclasses.fields(ClothParams)}
+    fields |= {"cfg." + f.name for f in dataclasses.fields(DriverConfig)}
     out: dict[str, Any] = {}
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or key not in fields:
-            raise SystemExit(f"--param {item!r}: expected KEY=VALUE with KEY one of {', '.join(fields)}")
-        current = getattr(ClothParams(), key)
+            raise SystemExit(f"--param {item!r}: expected KEY=VALUE with KEY one of {', '.join(sorted(fields))}")
+        current = getattr(DriverConfig(), key[4:]) if key.startswith("cfg.") else getattr(ClothParams(), key)
         try:
             if isinstance(current, bool):
                 if raw not in ("True", "False", "1", "0"):
@@ -119,11 +123,19 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
+def split_overrides(overrides: dict[str, Any] | None) -> tuple[ClothParams, DriverConfig]:
+    """:func:`parse_overrides`' result as the solver parameters and the driver config."""
+    items = (overrides or {}).items()
+    return (ClothParams(**{k: v for k, v in items if not k.startswith("cfg.")}),
+            DriverConfig(**{k[4:]: v for k, v in items if k.startswith("cfg.")}))
+
+
 def _one(job: tuple[str, str, int, dict[str, Any]]) -> dict[str, Any]:
     rel, garment, particles, overrides = job
     try:
         motion = load_motion(mocap_root() / rel)
-        r = simulate_motion(motion, garment, particles=particles, params=ClothParams(**overrides))
+        params, config = split_overrides(overrides)
+        r = simulate_motion(motion, garment, particles=particles, params=params, config=config)
         r["recording"] = rel
         return r
     except Exception as exc:  # report and keep sweeping
@@ -181,8 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rt-particles", default="2000,5000", help="garment sizes for the real-time factor")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_cloth" / "results.json"))
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a ClothParams field in the real-time runs and the sweep (repeatable), "
-                         "e.g. extra_rounds=12")
+                    help="override a ClothParams field (or cfg.FIELD a DriverConfig field) in the real-time "
+                         "runs and the sweep (repeatable), e.g. extra_rounds=12 or cfg.slide_fraction=0")
     args = ap.parse_args(argv)
     overrides = parse_overrides(args.param)
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

@@ -92,6 +92,10 @@ def speed(rt_particles: tuple[int, ...] = (2000, 5000), overrides: dict[str, Any
     return out
 
 
+#: ``--param`` prefix of a ``DriverConfig`` field (no prefix: a ``ClothParams`` field).
+CFG = "cfg."
+
+
 def parse_overrides(items: list[str]) -> dict[str, Any]:
     """``["key=value", ...]`` -> overrides, each value parsed as its field's type: ``key`` a
     ``ClothParams`` field, ``cfg.key`` a ``DriverConfig`` field.
@@ -102,13 +106,14 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
         On an unknown field or a value of the wrong type.
     """
     fields = {f.name for f in dataclasses.fields(ClothParams)}
-    fields |= {"cfg." + f.name for f in dataclasses.fields(DriverConfig)}
+    fields |= {CFG + f.name for f in dataclasses.fields(DriverConfig)}
     out: dict[str, Any] = {}
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or key not in fields:
             raise SystemExit(f"--param {item!r}: expected KEY=VALUE with KEY one of {', '.join(sorted(fields))}")
-        current = getattr(DriverConfig(), key[4:]) if key.startswith("cfg.") else getattr(ClothParams(), key)
+        owner = DriverConfig() if key.startswith(CFG) else ClothParams()
+        current = getattr(owner, key.removeprefix(CFG))
         try:
             if isinstance(current, bool):
                 if raw not in ("True", "False", "1", "0"):
@@ -126,8 +131,8 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
 def split_overrides(overrides: dict[str, Any] | None) -> tuple[ClothParams, DriverConfig]:
     """:func:`parse_overrides`' result as the solver parameters and the driver config."""
     items = (overrides or {}).items()
-    return (ClothParams(**{k: v for k, v in items if not k.startswith("cfg.")}),
-            DriverConfig(**{k[4:]: v for k, v in items if k.startswith("cfg.")}))
+    return (ClothParams(**{k: v for k, v in items if not k.startswith(CFG)}),
+            DriverConfig(**{k.removeprefix(CFG): v for k, v in items if k.startswith(CFG)}))
 
 
 def _one(job: tuple[str, str, int, dict[str, Any]]) -> dict[str, Any]:

@@ -21,8 +21,10 @@ it ``(pose, time)`` pairs as they arrive:
   ``seam_reach``) and their neighbours go for that step (they collide like free
   cloth) unless more than ``slide_fraction`` of it is covered, when it slides too (pushing a
   waistband's pins out to the nearest surface sends neighbours to opposite sides of a thigh: the
-  rest of the pins carries the garment meanwhile); what a slide still stretches of the seam is
-  shortened again (``DriverConfig.keep_seam_length``);
+  rest of the pins carries the garment meanwhile); a forearm or hand on the waistband slides it
+  instead (``DriverConfig.slide_under_arms``: released, the band let a forearm pressed on it
+  into the gap and stretched over it); what a slide still stretches of the seam is shortened
+  again (``DriverConfig.keep_seam_length``);
 * a non-finite value (never expected) re-dresses the garment and is counted.
 """
 
@@ -41,6 +43,7 @@ from protocol.skeleton import Body
 from . import _kernels as K
 from .avatar import (
     LIMBS,
+    AvatarKeys,
     Continuity,
     avatar_capsules,
     capsule_endpoints,
@@ -83,7 +86,8 @@ class DriverConfig:
     move spread along ``seam_spread`` metres of the seam either side (``AvatarKeys.slide_seam``,
     rounded to whole pins: 8 at 2,000 particles; 0: none), and with ``keep_seam_length`` what the
     slide still stretched shortened again (``AvatarKeys.keep_seam_length``; False: session 19's
-    slide)."""
+    slide); with ``slide_under_arms`` a forearm or hand on a waistband slides it instead of
+    releasing the pins it covers (``ClothDriver._seam_action``; False: session 20's rule)."""
 
     key_dt: float = 1.0 / 240.0
     dress_s: float = 0.6
@@ -99,6 +103,7 @@ class DriverConfig:
     ghost_clear: float = -0.03
     limb_clearance: float | None = LIMB_CLEARANCE
     keep_seam_length: bool = True
+    slide_under_arms: bool = True
     continuity: Continuity = field(default_factory=Continuity)
 
 
@@ -306,13 +311,13 @@ class ClothDriver:
         self._limb_memory = keys.limb_memory
         g = self.garment
         pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local, g.pin_roll)
-        released = self._widen(keys.covered(pins, self._seam_margin))
-        if self.garment.seam == "slide" or released.sum() > self.config.slide_fraction * len(released):
+        slide, released = self._seam_action(keys, pins)
+        if slide:
             # slide the seam over the body part that covers it (always for a collar; for a
-            # waistband when most of it is covered, instead of letting the garment go)
+            # waistband when most of it is covered, instead of letting the garment go, or with
+            # slide_under_arms where a forearm or hand covers it)
             pins = keys.slide_seam(pins, self.model.params.margin, self._spread_pins, self.garment.wrap,
                                    self._seam_rest if self.config.keep_seam_length else None)
-            released[:] = False
         if extra_damping == 0.0 and self.state.t < self._calm_until:
             left = (self._calm_until - self.state.t) / self.config.reset_calm_s
             extra_damping = self.config.reset_damping * min(1.0, left)
@@ -376,6 +381,47 @@ class ClothDriver:
         d, _, _ = round_cone_np(g.rest[g.pin_index], a, b, self.body.capsule_radii[:, 0], self.body.capsule_radii[:, 1])
         out[d.min(axis=0) > self.config.seam_reach] = self.config.seam_reach
         return out
+
+    def _seam_action(self, keys: AvatarKeys, pins: F64) -> tuple[bool, NDArray[np.bool_]]:
+        """What the seam does over one frame's keys: ``(slide, released (P,) bool)``.
+
+        A collar always slides and releases nothing. A waistband lets go of the pins a body part
+        covers (:meth:`_widen`), unless more than ``slide_fraction`` of them are covered, when it
+        slides instead and releases nothing; with ``slide_under_arms`` only the trunk, legs and
+        upper arms (and a limb sunk into the trunk) release pins, and a forearm or hand on the
+        waistband slides it (the released pins, free, are not moved by the slide).
+
+        Parameters
+        ----------
+        keys : AvatarKeys
+            The body over the frame's ``K + 1`` keys.
+        pins : (K + 1, P, 3) float64
+            The seam pins' targets at each key.
+        """
+        if self.garment.seam == "slide":
+            return True, np.zeros(pins.shape[1], dtype=bool)
+        if not self.config.slide_under_arms:
+            released, slide = self._widen(keys.covered(pins, self._seam_margin)), False
+        else:
+            arm, trunk = self._split_reach(keys)
+            released = self._widen(keys.covered(pins, trunk))
+            slide = bool(keys.covered(pins, arm).any())
+        if released.sum() > self.config.slide_fraction * len(released):
+            return True, np.zeros_like(released)
+        return slide, released
+
+    def _split_reach(self, keys: AvatarKeys) -> tuple[F64, F64]:
+        """``_seam_margin`` split into the reach of the forearms and hands that slide the seam
+        and that of the body parts that release it, each ``(C,)`` with the others out of reach
+        (``-inf``). A forearm and hand sunk into the trunk (ghosted at the last step, or deeper
+        than ``ghost_depth`` at the frame's end) release, as without ``slide_under_arms``: a slide
+        would push the pins out of a limb that is inside the hips."""
+        sunk = self._ghost | (limb_overlap(keys.track.a[-1], keys.track.b[-1], keys.track.radii)
+                              > self.config.ghost_depth)
+        sunk = sunk.reshape(-1, 2).any(axis=1).repeat(2)  # forearm and hand of a side together
+        arm = np.zeros(len(self._seam_margin), dtype=bool)
+        arm[LIMBS[~sunk]] = True
+        return np.where(arm, self._seam_margin, -np.inf), np.where(arm, -np.inf, self._seam_margin)
 
     def _widen(self, covered: NDArray[np.bool_]) -> NDArray[np.bool_]:
         """``covered`` pins plus their neighbours along the seam (the seam gives way around the

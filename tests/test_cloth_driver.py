@@ -250,6 +250,61 @@ def test_waistband_lets_go_where_an_arm_comes_near_but_not_round_the_trunk() -> 
     assert d._widen(keys.covered(near, reach)).sum() == 3  # the pin and its two neighbours go
 
 
+def test_slide_under_arms_slides_the_waistband_under_a_forearm_and_releases_it_at_the_trunk() -> None:
+    """With ``slide_under_arms`` (the default) a forearm or hand on the waistband slides the seam
+    (nothing let go) while a thigh, the trunk or a limb sunk into it still releases the pins it
+    covers; off, both release. A collar always slides; most of the seam covered slides either way."""
+    g = make_skirt(BODY, 500)
+    on = ClothDriver(BODY, g, config=FAST)
+    off = ClothDriver(BODY, g, config=replace(FAST, slide_under_arms=False))
+    assert DriverConfig().slide_under_arms and not off.config.slide_under_arms
+    pose = standing_pose(BODY)
+    keys = pose_keys(BODY, np.stack([pose, pose]))
+    pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
+    arm, trunk = on._split_reach(keys)
+    for name in ("l_forearm", "l_hand", "r_forearm", "r_hand"):
+        i = CAPSULE_INDEX[name]
+        assert arm[i] == on._seam_margin[i] and trunk[i] == -np.inf
+    for name in ("pelvis", "abdomen", "l_thigh", "l_upper_arm"):
+        i = CAPSULE_INDEX[name]
+        assert arm[i] == -np.inf and trunk[i] == on._seam_margin[i]
+    on._ghost[:2] = True  # the left forearm and hand sunk into the trunk: they release, as when off
+    arm, trunk = on._split_reach(keys)
+    assert np.all(arm[[CAPSULE_INDEX["l_forearm"], CAPSULE_INDEX["l_hand"]]] == -np.inf)
+    assert arm[CAPSULE_INDEX["r_hand"]] == on._seam_margin[CAPSULE_INDEX["r_hand"]]
+    np.testing.assert_array_equal(trunk[[CAPSULE_INDEX["l_forearm"], CAPSULE_INDEX["l_hand"]]],
+                                  on._seam_margin[[CAPSULE_INDEX["l_forearm"], CAPSULE_INDEX["l_hand"]]])
+    on._ghost[:] = False
+    for d in (on, off):
+        slide, released = d._seam_action(keys, pins)
+        assert not slide and not released.any()  # standing: nothing near the waistband
+
+    def near(capsule: str, gap: float = 0.01) -> np.ndarray:  # pin 0 moved to ``gap`` m off the surface
+        a, b = keys.track.a[0, CAPSULE_INDEX[capsule]], keys.track.b[0, CAPSULE_INDEX[capsule]]
+        r = BODY.capsule_radii[CAPSULE_INDEX[capsule]].mean()
+        out = pins.copy()
+        out[:, 0] = 0.5 * (a + b) + np.array([r + gap, 0.0, 0.0])
+        return out
+
+    slide, released = on._seam_action(keys, near("l_forearm"))
+    assert slide and not released.any()
+    slide, released = off._seam_action(keys, near("l_forearm"))
+    assert not slide and released.sum() == 3
+    for d in (on, off):
+        slide, released = d._seam_action(keys, near("l_thigh", -0.01))
+        assert not slide and released.sum() == 3
+    most = pins.copy()
+    most[:, :] = near("l_thigh", -0.01)[:, :1]  # every pin on the thigh: more than slide_fraction covered
+    for d in (on, off):
+        slide, released = d._seam_action(keys, most)
+        assert slide and not released.any()
+    cape = ClothDriver(BODY, make_cape(BODY, 500), config=FAST)
+    cp = keys.pin_targets(cape.garment.pin_joint, cape.garment.pin_local, cape.garment.pin_axis,
+                          cape.garment.pin_axis_s, cape.garment.pin_axis_local)
+    slide, released = cape._seam_action(keys, cp)
+    assert slide and not released.any()
+
+
 def test_released_pins_hand_their_cloth_to_the_held_pins() -> None:
     """While part of the waistband is let go, every particle is tethered to its nearest *held* pin
     (never tighter than its own attachment), so the released stretch does not sag and stretch under

@@ -5,6 +5,7 @@ import pytest
 from tracker_service.background import (
     BackgroundParams,
     clean_mask,
+    clean_mask_reference,
     learn_background,
     raw_foreground,
     raw_foreground_reference,
@@ -71,6 +72,33 @@ def test_clean_mask_keeps_largest_component_and_fills_holes() -> None:
     out = clean_mask(m, BackgroundParams(open_px=1, close_px=1))
     assert out[22, 17] and not out[3, 46]
     assert out.sum() == 30 * 20
+
+
+@pytest.mark.parametrize("open_px,close_px", [(3, 5), (1, 1), (5, 9), (3, 1)])
+def test_clean_mask_in_the_box_equals_the_whole_image(open_px: int, close_px: int) -> None:
+    """The box-cropped clean-up gives the whole-image result bit for bit: blobs with holes and
+    notches, specks, several components, a person touching each image border and the corners,
+    a hole that opens to the box's edge, and empty or all-speck masks."""
+    rng = np.random.default_rng(23)
+    params = BackgroundParams(open_px=open_px, close_px=close_px)
+    cases = []
+    for k in range(120):
+        h, w = (60, 80) if k % 2 else (120, 160)
+        m = np.zeros((h, w), bool)
+        for _ in range(int(rng.integers(0, 4))):  # blobs
+            y0, x0 = int(rng.integers(-10, h)), int(rng.integers(-10, w))
+            m[max(y0, 0):y0 + int(rng.integers(5, h // 2)), max(x0, 0):x0 + int(rng.integers(3, w // 3))] = True
+        m ^= rng.random((h, w)) < (0.02 if k % 3 else 0.15)  # specks and pinholes
+        if k % 5 == 0:  # a person against one border or a corner
+            side = int(rng.integers(0, 4))
+            sl = [(slice(0, h // 2), slice(w // 3, w // 2)), (slice(h // 2, h), slice(w // 3, w // 2)),
+                  (slice(h // 4, h // 2), slice(0, w // 4)), (slice(h // 2, h), slice(w - w // 4, w))][side]
+            m[sl] = True
+            m[sl[0].start + 2:sl[0].stop - 2, sl[1].start + 2:sl[1].start + 4] = False  # a hole or a notch
+        cases.append(m)
+    cases += [np.zeros((60, 80), bool), np.ones((60, 80), bool)]
+    for m in cases:
+        np.testing.assert_array_equal(clean_mask(m, params), clean_mask_reference(m, params))
 
 
 def test_adaptive_update_absorbs_a_slow_change(rng: np.random.Generator) -> None:

@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 
 from ._kernels import foreground_kernel
 
-__all__ = ["BackgroundModel", "BackgroundParams", "learn_background", "raw_foreground", "raw_foreground_reference",
+__all__ = ["BackgroundModel", "BackgroundParams", "clean_mask", "clean_mask_reference", "learn_background",
+           "raw_foreground", "raw_foreground_reference",
            "subtract", "update_background"]
 
 _EPS = 1e-6
@@ -180,6 +181,12 @@ def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
 def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
     """Opening, closing, largest connected component, holes filled.
 
+    After the opening everything happens in the box round what is left, grown by the closing's
+    size plus one pixel: the result is the same as on the whole image (outside the box the closed
+    mask is empty, and every background pixel there reaches the image border), and the
+    connected-component pass, the costliest step (0.5 ms of a 320 x 240 frame, 0.15 ms on the
+    box), sees a few times fewer pixels. :func:`clean_mask_reference` is the whole-image form.
+
     Parameters
     ----------
     mask : (H, W) bool
@@ -190,24 +197,62 @@ def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundPar
         Empty if the largest component is smaller than ``min_area_frac`` of the image.
     """
     m = np.asarray(mask, dtype=np.uint8)
-    for op, size in ((cv2.MORPH_OPEN, params.open_px), (cv2.MORPH_CLOSE, params.close_px)):
-        if size > 1:
-            m = np.asarray(cv2.morphologyEx(m, op, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))),
-                           dtype=np.uint8)
+    if params.open_px > 1:
+        m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_OPEN, _ellipse(params.open_px)), dtype=np.uint8)
+    out = np.zeros(mask.shape, bool)
+    x, y, w, h = cv2.boundingRect(m)
+    if w == 0 or h == 0:
+        return out
+    pad = max(params.close_px, 0) + 1
+    ys = slice(max(y - pad, 0), min(y + h + pad, m.shape[0]))
+    xs = slice(max(x - pad, 0), min(x + w + pad, m.shape[1]))
+    box = _largest_filled(np.ascontiguousarray(m[ys, xs]), params, mask.size)
+    if box is not None:
+        out[ys, xs] = box
+    return out
+
+
+def clean_mask_reference(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """:func:`clean_mask` on the whole image (a test holds the two equal).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    m = np.asarray(mask, dtype=np.uint8)
+    if params.open_px > 1:
+        m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_OPEN, _ellipse(params.open_px)), dtype=np.uint8)
+    box = _largest_filled(m, params, mask.size)
+    return np.zeros(mask.shape, bool) if box is None else box
+
+
+def _ellipse(size: int) -> NDArray[np.uint8]:
+    return np.asarray(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)), dtype=np.uint8)
+
+
+def _largest_filled(m: NDArray[np.uint8], params: BackgroundParams, image_size: int) -> NDArray[np.bool_] | None:
+    """Closing, the largest 8-connected component and its holes filled, of the opened ``m``
+    ``(h, w) uint8``; None if that component is under ``min_area_frac`` of ``image_size`` pixels."""
+    if params.close_px > 1:
+        m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_CLOSE, _ellipse(params.close_px)), dtype=np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1:
-        return np.zeros(mask.shape, bool)
+        return None
     k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    if stats[k, cv2.CC_STAT_AREA] < params.min_area_frac * mask.size:
-        return np.zeros(mask.shape, bool)
-    comp = labels == k
+    if stats[k, cv2.CC_STAT_AREA] < params.min_area_frac * image_size:
+        return None
     # fill holes: background regions not 4-connected to the border (flood the background from a
     # one-pixel frame around the image; what the flood does not reach is inside the body)
-    h, w = mask.shape
+    h, w = m.shape
     outside = np.zeros((h + 2, w + 2), np.uint8)
-    outside[1:-1, 1:-1] = comp
+    outside[1:-1, 1:-1] = labels == k
     cv2.floodFill(outside, None, (0, 0), 2, flags=4)
-    return outside[1:-1, 1:-1] != 2
+    filled: NDArray[np.bool_] = outside[1:-1, 1:-1] != 2
+    return filled
 
 
 def subtract(model: BackgroundModel, frame: NDArray[np.uint8],

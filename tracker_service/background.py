@@ -196,9 +196,7 @@ def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundPar
     (H, W) bool
         Empty if the largest component is smaller than ``min_area_frac`` of the image.
     """
-    m = np.asarray(mask, dtype=np.uint8)
-    if params.open_px > 1:
-        m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_OPEN, _ellipse(params.open_px)), dtype=np.uint8)
+    m = _opened(mask, params)
     out = np.zeros(mask.shape, bool)
     x, y, w, h = cv2.boundingRect(m)
     if w == 0 or h == 0:
@@ -213,21 +211,18 @@ def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundPar
 
 
 def clean_mask_reference(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
-    """:func:`clean_mask` on the whole image (a test holds the two equal).
+    """:func:`clean_mask` on the whole image (a test holds the two equal); ``mask (H, W) bool``
+    -> ``(H, W) bool``."""
+    m = _opened(mask, params)
+    box = _largest_filled(m, params, mask.size)
+    return np.zeros(mask.shape, bool) if box is None else box
 
-    Parameters
-    ----------
-    mask : (H, W) bool
 
-    Returns
-    -------
-    (H, W) bool
-    """
+def _opened(mask: NDArray[np.bool_], params: BackgroundParams) -> NDArray[np.uint8]:
     m = np.asarray(mask, dtype=np.uint8)
     if params.open_px > 1:
         m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_OPEN, _ellipse(params.open_px)), dtype=np.uint8)
-    box = _largest_filled(m, params, mask.size)
-    return np.zeros(mask.shape, bool) if box is None else box
+    return m
 
 
 def _ellipse(size: int) -> NDArray[np.uint8]:

@@ -311,6 +311,7 @@ class ClothDriver:
         self._limb_memory = keys.limb_memory
         g = self.garment
         pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local, g.pin_roll)
+        body = self._ghosted(keys.track)  # first: the seam rule reads this step's sunk limbs
         slide, released = self._seam_action(keys, pins)
         if slide:
             # slide the seam over the body part that covers it (always for a collar; for a
@@ -323,7 +324,7 @@ class ClothDriver:
             extra_damping = self.config.reset_damping * min(1.0, left)
         # substeps planned on the full-size limbs: a sunk limb's thin stand-in would count as fast
         n_sub = plan_substeps(self.model, keys.track, dt, self.state)
-        self.state = step(self.state, self.model, self._ghosted(keys.track), pins, dt, released=released,
+        self.state = step(self.state, self.model, body, pins, dt, released=released,
                           n_substeps=n_sub, extra_damping=extra_damping, tethers=self._held_tethers(released))
         self._body_end = (keys.track.a[-1], keys.track.b[-1])  # the capsules at p1, for _measure
         self._free = self.model.inv_mass > 0
@@ -403,24 +404,21 @@ class ClothDriver:
         if not self.config.slide_under_arms:
             released, slide = self._widen(keys.covered(pins, self._seam_margin)), False
         else:
-            arm, trunk = self._split_reach(keys)
+            arm, trunk = self._split_reach()
             released = self._widen(keys.covered(pins, trunk))
             slide = bool(keys.covered(pins, arm).any())
         if released.sum() > self.config.slide_fraction * len(released):
             return True, np.zeros_like(released)
         return slide, released
 
-    def _split_reach(self, keys: AvatarKeys) -> tuple[F64, F64]:
+    def _split_reach(self) -> tuple[F64, F64]:
         """``_seam_margin`` split into the reach of the forearms and hands that slide the seam
         and that of the body parts that release it, each ``(C,)`` with the others out of reach
-        (``-inf``). A forearm and hand sunk into the trunk (ghosted at the last step, or deeper
-        than ``ghost_depth`` at the frame's end) release, as without ``slide_under_arms``: a slide
-        would push the pins out of a limb that is inside the hips."""
-        sunk = self._ghost | (limb_overlap(keys.track.a[-1], keys.track.b[-1], keys.track.radii)
-                              > self.config.ghost_depth)
-        sunk = sunk.reshape(-1, 2).any(axis=1).repeat(2)  # forearm and hand of a side together
+        (``-inf``). A forearm and hand ghosted for this step (sunk into the trunk,
+        :meth:`_ghosted`) release, as without ``slide_under_arms``: a slide would push the pins
+        out of a limb that is inside the hips."""
         arm = np.zeros(len(self._seam_margin), dtype=bool)
-        arm[LIMBS[~sunk]] = True
+        arm[LIMBS[~self._ghost]] = True
         return np.where(arm, self._seam_margin, -np.inf), np.where(arm, -np.inf, self._seam_margin)
 
     def _widen(self, covered: NDArray[np.bool_]) -> NDArray[np.bool_]:

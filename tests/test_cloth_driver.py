@@ -261,7 +261,7 @@ def test_slide_under_arms_slides_the_waistband_under_a_forearm_and_releases_it_a
     pose = standing_pose(BODY)
     keys = pose_keys(BODY, np.stack([pose, pose]))
     pins = keys.pin_targets(g.pin_joint, g.pin_local, g.pin_axis, g.pin_axis_s, g.pin_axis_local)
-    arm, trunk = on._split_reach(keys)
+    arm, trunk = on._split_reach()
     for name in ("l_forearm", "l_hand", "r_forearm", "r_hand"):
         i = CAPSULE_INDEX[name]
         assert arm[i] == on._seam_margin[i] and trunk[i] == -np.inf
@@ -269,7 +269,7 @@ def test_slide_under_arms_slides_the_waistband_under_a_forearm_and_releases_it_a
         i = CAPSULE_INDEX[name]
         assert arm[i] == -np.inf and trunk[i] == on._seam_margin[i]
     on._ghost[:2] = True  # the left forearm and hand sunk into the trunk: they release, as when off
-    arm, trunk = on._split_reach(keys)
+    arm, trunk = on._split_reach()
     assert np.all(arm[[CAPSULE_INDEX["l_forearm"], CAPSULE_INDEX["l_hand"]]] == -np.inf)
     assert arm[CAPSULE_INDEX["r_hand"]] == on._seam_margin[CAPSULE_INDEX["r_hand"]]
     np.testing.assert_array_equal(trunk[[CAPSULE_INDEX["l_forearm"], CAPSULE_INDEX["l_hand"]]],

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 from _host import host_probe  # bench/ is the script's folder
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from protocol import fk
@@ -41,7 +42,7 @@ from tracker_service.placement import observed_placement
 from tracker_service.silhouette_distance import RunSet
 from tracker_service.silhouette_render import render_silhouette, silhouette_runs_batch
 from tracker_service.template_db import default_db_dir, load_db
-from tracker_service.tracker_cli import ensure_db
+from tracker_service.tracker_cli import ensure_appearance, ensure_db
 from tracker_service.tree_filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.warmup import warm_up
 
@@ -104,8 +105,11 @@ def main() -> int:
     ap.add_argument("--no-pyramid", action="store_true", help="skip the pyramid speed-up measurement")
     ap.add_argument("--cpu", type=int, default=0,
                     help="pin the benchmark to this one CPU (the targets are per core; -1: do not pin)")
+    ap.add_argument("--appearance", metavar="PATH|off",
+                    help="the appearance cue's network (default: out/appearance/net.npz, trained on first use)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    threadpool_limits(1, user_api="blas")  # one core per frame, as mocap-tracker runs (tracker_service/_entry.py)
     if args.cpu >= 0:
         if args.cpu not in os.sched_getaffinity(0):
             raise SystemExit(f"--cpu {args.cpu}: not one of this process's CPUs {sorted(os.sched_getaffinity(0))}")
@@ -122,6 +126,9 @@ def main() -> int:
         rs.rectangles()
     res["rectangles_rss_mb"] = round(_rss_mb() - rss1, 1)
     del full
+    net = ensure_appearance(args.appearance, train_if_missing=True)
+    res["appearance_net"] = None if net is None else {
+        k: net.meta[k] for k in ("samples", "val_rms_x", "val_rms_y", "val_rms_z") if k in net.meta}
     held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
     pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
     configs = {
@@ -145,7 +152,12 @@ def main() -> int:
         # no selection: the person's own measurements given (the user enters them; --measurements)
         "xor_given_height": TrackerConfig(distance="xor"),
         "xor_given_measurements": TrackerConfig(distance="xor"),
+        # no appearance cue (the tracker of sessions 16-23)
+        "xor_no_appearance": TrackerConfig(distance="xor"),
     }
+    # the product's default carries the appearance cue; the paper's observation model and the row without it do not
+    configs = {k: (c if k in ("xor_silhouette_only", "xor_no_appearance") else replace(c, appearance=net))
+               for k, c in configs.items()}
     given = {"xor_given_height": ("height",),
              "xor_given_measurements": ("height", "group", "chest", "waist", "hip", "shoulder", "arm", "leg")}
     if args.configs:

@@ -45,3 +45,23 @@ def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFac
     db, stats = build_filter_db(motions, body, default_camera(), cfg, rng=np.random.default_rng(1))
     path = save_db(tmp_path_factory.mktemp("db") / "mMA", db, body, default_camera(), {"stats": stats})
     return db, body, motions, stats, path
+
+
+@pytest.fixture(scope="session")
+def weak_appearance_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An appearance network file (:mod:`tracker_service.appearance`) that always sees a person
+    standing with the arms down, with a wide variance: the cue's whole path runs without the half
+    hour of rendering and training a real network needs. Its layers: one convolution, then a
+    dense layer that ignores it and answers its bias."""
+    from protocol.skeleton import N_JOINTS, POSE_SIZE
+    from tracker_service.appearance import AppearanceNet, Layer, leaf_camera_joints, save_appearance
+    from tracker_service.body_models import body_model
+    from tracker_service.camera import default_camera
+
+    size = 16
+    mu = leaf_camera_joints(np.zeros((1, POSE_SIZE), np.float32), body_model("mMA").body, default_camera())[0]
+    conv = Layer("conv", np.full((2, 4, 3, 3), 0.01, np.float32), np.zeros(2, np.float32), 2, True, True)
+    bias = np.concatenate([mu.ravel(), np.full(N_JOINTS * 3, 0.0, np.float32)]).astype(np.float32)
+    dense = Layer("dense", np.zeros((2 * N_JOINTS * 3, 2 * (size // 4) ** 2), np.float32), bias, 1, False, False)
+    return save_appearance(tmp_path_factory.mktemp("appearance") / "net.npz",
+                           AppearanceNet(size, (conv, dense), {"fixture": "standing"}))

@@ -1,5 +1,7 @@
-"""`mocap-tracker build-db --scripts DIR`: which files of a folder are gesture scripts."""
+"""`mocap-tracker build-db --scripts DIR`: which files of a folder are gesture scripts; the tracker
+options; `train-appearance`."""
 
+import argparse
 from pathlib import Path
 
 import pytest
@@ -24,16 +26,18 @@ def test_broken_toml_is_kept_for_the_reader_to_report(tmp_path: Path) -> None:
     assert [p.name for p in _gesture_scripts([str(tmp_path)])] == ["bad.toml", "ok.toml"]
 
 
+def ns(**kw: object) -> argparse.Namespace:
+    """The tracker options of ``run`` / ``eval`` with their defaults, overridden by ``kw`` (no
+    appearance network unless given: the tests do not depend on a trained one)."""
+    base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
+            "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off"}
+    return argparse.Namespace(**(base | kw))
+
+
 def test_tracker_options_build_the_config() -> None:
-    import argparse
     import math
 
     from tracker_service.tracker_cli import _config
-
-    def ns(**kw: object) -> argparse.Namespace:
-        base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
-                "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False}
-        return argparse.Namespace(**(base | kw))
 
     cfg = _config(ns())
     assert cfg.filter.max_heading is None and cfg.skin is not None and cfg.smoothing is not None
@@ -66,3 +70,43 @@ def test_tracker_options_build_the_config() -> None:
     assert _subject_keys("subject:height,leg") == ("height", "leg") and "arm" in _subject_keys("subject")
     with pytest.raises(ValueError):
         _subject_keys("subject:inseam")
+
+
+def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> None:
+    from tracker_service.appearance import AppearanceError
+    from tracker_service.tracker_cli import _config, _passes
+
+    assert _config(ns()).appearance is None
+    net = _config(ns(appearance=str(weak_appearance_net))).appearance
+    assert net is not None and net.meta == {"fixture": "standing"}
+    with pytest.raises(AppearanceError, match="train-appearance"):  # a named file must exist
+        _config(ns(appearance=str(tmp_path / "none.npz")))
+    (tmp_path / "junk.npz").write_text("not a network")
+    with pytest.raises(AppearanceError, match="corrupt"):
+        _config(ns(appearance=str(tmp_path / "junk.npz")))
+    assert _passes("1000:3,2000:2") == ((1000, 3), (2000, 2))
+    for bad in ("", "1000", "a:b", "5:0"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _passes(bad)
+
+
+def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
+    """``mocap-tracker train-appearance`` on two takes, one short pass, one epoch: a network file the
+    tracker loads, and its rendered views cached beside it."""
+    import subprocess
+    import sys
+
+    from tracker_service.appearance import load_appearance
+
+    out = tmp_path / "app" / "net.npz"
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--takes", "2", "--passes",
+                        "7:60", "--epochs", "1", "--jobs", "1", "--out", str(out)],
+                       cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "appearance network:" in r.stdout and out.is_file()
+    net = load_appearance(out)
+    assert net.size == 64 and net.meta["training_takes"] == 2 and net.meta["config"]["passes"] == [[7, 60]]
+    assert len(list((out.parent / "data" / "7_60_64").glob("*.npz"))) == 2
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:0"],
+                       cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "EVERY" in r.stderr

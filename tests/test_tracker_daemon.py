@@ -29,11 +29,12 @@ SCRIPT = REPO / "protocol" / "scripts" / "crouch.toml"
 pytestmark = pytest.mark.zenoh
 
 
-def test_daemon_publishes_sane_poses(small_db) -> None:  # type: ignore[no-untyped-def]
+def test_daemon_publishes_sane_poses(small_db, weak_appearance_net) -> None:  # type: ignore[no-untyped-def]
     path = small_db[4]
     ep = free_tcp_endpoint()
     cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{SCRIPT}", "--db", str(path),
-           "--body", "mMA", "--id", "e2e", "--frames", "70", "--listen", ep, "--wait-for-subscriber", "20", "-q"]
+           "--body", "mMA", "--id", "e2e", "--frames", "70", "--listen", ep, "--wait-for-subscriber", "20", "-q",
+           "--appearance", str(weak_appearance_net)]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     poses: list[PoseFrame] = []
@@ -101,7 +102,7 @@ def test_daemon_stops_on_sigterm(small_db, when: str) -> None:  # type: ignore[n
     warm-up: no Zenoh session yet) or once it publishes (the loop checks the stop per frame)."""
     path = small_db[4]
     cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{SCRIPT}", "--db", str(path),
-           "--body", "mMA", "--listen", free_tcp_endpoint()]
+           "--body", "mMA", "--listen", free_tcp_endpoint(), "--appearance", "off"]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     lines = _stderr_lines(proc)
     try:
@@ -142,18 +143,18 @@ def test_missing_database_is_a_clear_error(tmp_path: Path) -> None:
     assert "build-db" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_eval_prints_the_json_contract(small_db) -> None:  # type: ignore[no-untyped-def]
+def test_eval_prints_the_json_contract(small_db, weak_appearance_net) -> None:  # type: ignore[no-untyped-def]
     path = small_db[4]
     r = subprocess.run([sys.executable, "-m", "tracker_service", "eval", "--script", str(SCRIPT), "--db", str(path),
-                        "--body", "mMA", "--frames", "40", "--json", "-q"], cwd=REPO, capture_output=True, text=True,
-                       timeout=180)
+                        "--body", "mMA", "--frames", "40", "--json", "-q", "--appearance", str(weak_appearance_net)],
+                       cwd=REPO, capture_output=True, text=True, timeout=180)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     for key in ("mpjpe_cm", "root_error_cm", "mpjpe_2d_px", "frames_within_10cm", "reacquire_s_max", "fps",
                 "ms_per_frame", "distance_evals_per_level", "templates", "estimator", "distance", "body_selected",
                 "frames"):
         assert key in out
-    assert out["frames"] == 40 and out["estimator"] == "tree"
+    assert out["frames"] == 40 and out["estimator"] == "tree" and out["appearance_cue"] is True
     assert set(out["ms_per_frame"]) == {"preprocess", "estimate", "total"}
     assert out["mpjpe_cm"] is not None and 0 < out["mpjpe_cm"] < 100
     assert len(out["distance_evals_per_level"]) == 3

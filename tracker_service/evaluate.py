@@ -237,6 +237,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         "templates": int(loaded.db.n_leaves),
         "tree_levels": [int(s) for s in loaded.db.tree.level_sizes],
         "estimator": "tree",
+        "appearance_cue": bool(config.appearance is not None and config.filter.appearance_weight > 0),
         "distance": config.distance,
         "occlusion_dynamics": config.occlusion,
         "body_selected": state.body.name,

@@ -63,6 +63,12 @@ class FilterDB:
     leaf_points : (NL, J, 2) float32, optional
         Image position of every joint of each leaf's template at the reference placement
         (:func:`tracker_service.skin.leaf_joint_points`); empty: no skin cue.
+    leaf_joints3d : (NL, J, 3) float32, optional
+        Every leaf's joints relative to its pelvis in the camera's axes, over the body's height
+        (:func:`tracker_service.appearance.leaf_camera_joints`); empty: no appearance cue.
+    leaf_joints3d_sq : (NL, J, 3) float32, optional
+        Their squares (the appearance cue's proposals over the whole database,
+        :func:`tracker_service.appearance.propose_leaves`).
     """
 
     tree: TemplateTree
@@ -85,6 +91,8 @@ class FilterDB:
     level_top: tuple[NDArray[np.float64], ...] = ()
     ref_bottom: float = float("nan")
     leaf_points: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2), np.float32))
+    leaf_joints3d: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 3), np.float32))
+    leaf_joints3d_sq: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 3), np.float32))
 
     @property
     def n_leaves(self) -> int:
@@ -188,6 +196,19 @@ class FilterParams:
         (``ShoeParams.weight``) multiplies the support's tempered posterior, which already holds
         this term (``exp(-shoe_weight * cost / T)``): the two were tuned together. The term is
         scored at each leaf's placement before the refinement and held over the refinement grid.
+    appearance_weight : float
+        Weight of the appearance cue's cost (:func:`tracker_service.appearance.joints_cost`,
+        relative to the cheapest leaf) in the leaf level's negative log likelihood
+        (``step(..., appearance_cost=)``); 0: off. 1: the network's Gaussian at face value; 8 held-out
+        takes gave 6.97 / 6.80 / 6.66 / 6.58 / 6.52 / 6.49 / 6.47 cm at 0.05 / 0.1 / 0.2 / 0.6 / 1 / 2 / 4
+        (docs/TRACKER.md, session 24).
+    appearance_coords : tuple of int
+        Coordinates of the joints the appearance cue scores (0 = x, 1 = y, 2 = depth).
+    appearance_proposals : int
+        Leaves the appearance cue proposes from the whole database each frame (its best by
+        :func:`tracker_service.appearance.propose_leaves` among the headings within ``max_turn``
+        of the current one), evaluated at the leaf level beside the tree's candidates; 0: none
+        (64 gave the same as 32).
     """
 
     sigma: tuple[float, ...] = (0.01, 0.01, 0.01)
@@ -227,6 +248,9 @@ class FilterParams:
     skin_cover_from_level: int = 2
     skin_cover_radius_px: float = 6.0
     shoe_weight: float = 0.02
+    appearance_weight: float = 1.0
+    appearance_coords: tuple[int, ...] = (0, 1, 2)
+    appearance_proposals: int = 32
 
 
 @dataclass(frozen=True)
@@ -288,7 +312,8 @@ class Estimate:
         ``FilterState.leaves`` (which is empty after a re-initialisation).
     support_cost : (K,) float64
         Each support leaf's cost at that placement: eq. 6's negative log likelihood plus the
-        placement prior, the skin cue and the shoe cue (``FilterParams.shoe_weight``).
+        placement prior, the skin cue, the shoe cue (``FilterParams.shoe_weight``) and the
+        appearance cue (``FilterParams.appearance_weight``).
     support_leaves : (K,) int64
         The support leaves themselves (``FilterState.leaves`` before any re-initialisation).
     support_weights : (K,) float64

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, N_PARTS, Body
 
+from .appearance import AppearanceNet, joints_cost, predict_joints, propose_leaves
 from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
@@ -89,6 +90,10 @@ class TrackerConfig:
         The shoe cue (:mod:`tracker_service.shoes`): the shoes' colour learned while initialising;
         each frame's shoe pixels weigh the leaves in the filter (``FilterParams.shoe_weight``) and
         re-weight the published pose's legs (``ShoeParams.weight``); None: off.
+    appearance : AppearanceNet or None
+        The appearance cue's network (:mod:`tracker_service.appearance`): the joints' depth read from
+        the person's colour image weighs the leaves in the filter (``FilterParams.appearance_weight``);
+        None: off.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -112,6 +117,7 @@ class TrackerConfig:
     depth_from_feet: bool = True
     skin: SkinModel | None = field(default_factory=SkinModel)
     shoes: ShoeParams | None = field(default_factory=ShoeParams)
+    appearance: AppearanceNet | None = None
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
 
@@ -156,7 +162,8 @@ class FrameResult:
     distance : float
     evaluations : tuple of int
     stage_ms : dict[str, float]
-        ``background``, ``preprocess``, ``estimate`` and ``total`` milliseconds.
+        ``background``, ``preprocess``, ``estimate`` (of which ``filter``: the cues and the filter
+        step; ``appearance``: the appearance cue's network) and ``total`` milliseconds.
     reinitialised : bool
     body_changed : bool
         The body model was (re)chosen in this frame.
@@ -194,6 +201,21 @@ def _feet_offset(pose: NDArray[np.float64], body: Body, db_body: Body, scale: fl
     rel = pose.copy()
     rel[:3] = 0.0
     return float(scale * fk(rel, db_body)[_FEET, 1].min() - fk(rel, body)[_FEET, 1].min())
+
+
+def _headings_near(fstate: FilterState, db: FilterDB, params: FilterParams) -> NDArray[np.bool_]:
+    """Leaves whose heading is within ``params.max_turn`` of the filter's current one (facing the
+    camera when it has none) and within ``params.max_heading``: where the appearance cue may propose."""
+    h = db.leaf_heading
+    if len(fstate.leaves):
+        cur = h[fstate.leaves].astype(np.float64)
+        mean = float(np.arctan2(fstate.weights @ np.sin(cur), fstate.weights @ np.cos(cur)))
+        ok = np.abs(np.remainder(h - mean + np.pi, 2 * np.pi) - np.pi) <= params.max_turn
+    else:
+        ok = db.leaf_facing
+    if params.max_heading is not None:
+        ok = ok & (np.abs(h) <= params.max_heading)
+    return np.asarray(ok, bool)
 
 
 def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
@@ -275,7 +297,25 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             assert shoe_px is not None
             return feet_cost(shoe_px, foot_points(db.leaf_points[leaves], places, db.center), shoe_params, mask.shape)
 
-    fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask), leaf_shoe_cost)
+    leaf_appearance_cost = None
+    proposals = None
+    ta = time.perf_counter()
+    if config.appearance is not None and config.filter.appearance_weight > 0 and len(db.leaf_joints3d):
+        seen = predict_joints(config.appearance, frame, mask)
+        if seen is not None:
+            mu, var = seen
+            coords = config.filter.appearance_coords
+
+            def leaf_appearance_cost(leaves: NDArray[np.int64]) -> NDArray[np.float64]:
+                return joints_cost(mu, var, db.leaf_joints3d[leaves], coords)
+
+            if config.filter.appearance_proposals > 0 and len(db.leaf_joints3d_sq):
+                proposals = propose_leaves(mu, var, db.leaf_joints3d, db.leaf_joints3d_sq,
+                                           config.filter.appearance_proposals,
+                                           _headings_near(fstate, db, config.filter))
+    ms["appearance"] = (time.perf_counter() - ta) * 1e3
+    fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask), leaf_shoe_cost,
+                       leaf_appearance_cost, proposals)
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     body_changed = False

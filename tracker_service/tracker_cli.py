@@ -4,6 +4,7 @@
 ``run``       the tracker daemon: a frame source -> pipeline -> Zenoh (see :mod:`.tracker_app`).
 ``eval``      renders the synthetic scene for a motion, tracks it and prints the JSON contract of
               :func:`tracker_service.evaluate.evaluate_motion`.
+``train-appearance``  trains the appearance cue's network (cached under ``out/appearance``).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from typing import Any, TypeGuard
 
 from protocol.session import add_zenoh_args
 
-__all__ = ["DEFAULT_SCRIPT", "add_tracker_parsers", "ensure_db"]
+__all__ = ["DEFAULT_SCRIPT", "add_tracker_parsers", "ensure_appearance", "ensure_db"]
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,23 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
     bp.add_argument("--takes", type=int, metavar="N", help="use only the first N training takes (quick builds)")
     bp.set_defaults(func=_cmd_build_db)
 
+    ap = sub.add_parser("train-appearance", parents=list(parents),
+                        help="train the appearance cue's network (cached in out/appearance)",
+                        description="Render the training recordings (held-out takes excluded) on random synthetic "
+                                    "people and train the small network that reads the joints' depth from the "
+                                    "person's colour image (docs/TRACKER.md, session 24). Needs PyTorch; the "
+                                    "tracker itself does not.")
+    ap.add_argument("--out", metavar="PATH", help="network file (default: out/appearance/net.npz)")
+    ap.add_argument("--mocap", metavar="DIR", help="recordings folder (default: ../shared/mocap or $MOCAP_DATA)")
+    ap.add_argument("--epochs", type=int, metavar="N", help="training epochs (default: 15)")
+    ap.add_argument("--passes", type=_passes, metavar="SEED:EVERY,...",
+                    help="one pass per pair: every take on the person SEED+row chooses, every EVERY-th frame "
+                         "(default: 1000:3,2000:2,3000:2,4000:2)")
+    ap.add_argument("--takes", type=int, metavar="N", help="use only the first N training takes (quick builds)")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
+                    help="rendering processes (default: the CPUs)")
+    ap.set_defaults(func=_cmd_train_appearance)
+
     def tracker_opts(p: argparse.ArgumentParser) -> None:
         p.add_argument("--db", metavar="PATH", help="template database folder (default: out/db/mMA, "
                                                     "built on first use)")
@@ -94,6 +112,9 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
         p.add_argument("--no-shoes", action="store_true", help="no shoe colour cue for the legs")
         p.add_argument("--no-smoothing", action="store_true", help="publish the raw per-frame estimate "
                                                                   "(no One Euro smoothing)")
+        p.add_argument("--appearance", metavar="PATH|off",
+                       help="the appearance cue's network (default: out/appearance/net.npz when it exists; "
+                            "mocap-tracker train-appearance makes it, once); off: no cue")
         p.add_argument("--pose", choices=("mean", "map"), default="mean",
                        help="publish the posterior-mean pose (default: hedges between the modes of an "
                             "ambiguous silhouette) or the MAP leaf's pose")
@@ -147,6 +168,98 @@ def ensure_db(path: str | None, body: str = _DEFAULT_BODY, build_if_missing: boo
         log.warning("%s; building it now (a few minutes, cached for next time)", exc)
         _build(body, p, None, [str(d) for d in DEFAULT_SCRIPT_DIRS], None, None)
         return load_db(p)
+
+
+def _passes(text: str) -> tuple[tuple[int, int], ...]:
+    try:
+        out = tuple((int(a), int(b)) for a, b in (t.split(":") for t in text.split(",") if t.strip()))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SEED:EVERY[,SEED:EVERY...], got {text!r}") from None
+    if not out or any(every < 1 for _, every in out):
+        raise argparse.ArgumentTypeError(f"expected SEED:EVERY pairs with EVERY >= 1, got {text!r}")
+    return out
+
+
+def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
+    """The appearance network ``spec`` names (a path, ``off``, or None for the default file).
+
+    A missing default file is trained first when ``train_if_missing`` (some minutes, cached), else
+    the cue is off with a warning; a named file that cannot be read, or a corrupt default one,
+    raises :class:`tracker_service.appearance.AppearanceError`.
+    """
+    from .appearance import default_appearance_path, load_appearance
+
+    if spec == "off":
+        return None
+    p = Path(spec) if spec else default_appearance_path()
+    if spec or p.exists():
+        return load_appearance(p)
+    if not train_if_missing:
+        log.warning("no appearance network at %s: the appearance cue is off (train it once with: "
+                    "mocap-tracker train-appearance)", p)
+        return None
+    log.warning("no appearance network at %s; training it now (some minutes, cached for next time)", p)
+    _train_appearance(p, None, None, None, None, os.cpu_count() or 1)
+    return load_appearance(p)
+
+
+def _train_appearance(out: Path, mocap: str | None, epochs: int | None, passes: tuple[tuple[int, int], ...] | None,
+                      takes: int | None, jobs: int) -> dict[str, Any]:
+    from dataclasses import replace as dc_replace
+
+    from tqdm import tqdm
+
+    from .appearance import save_appearance
+    from .appearance_train import TrainConfig, render_samples, train_network
+    from .db_build import is_held_out
+
+    if mocap:
+        os.environ["MOCAP_DATA"] = mocap
+    from protocol.mocap_data import index_entries, mocap_root
+
+    cfg = TrainConfig()
+    if epochs:
+        cfg = dc_replace(cfg, epochs=epochs)
+    if passes:
+        cfg = dc_replace(cfg, passes=passes)
+    root = mocap_root()
+    entries = [(i, str(root / e.path)) for i, e in enumerate(index_entries()) if not is_held_out(i)]
+    if takes:
+        entries = entries[:takes]
+    t0 = time.perf_counter()
+    with tqdm(desc="render training views", unit="take") as bar:
+        def rendered(done: int, total: int) -> None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+
+        samples = render_samples(entries, cfg.passes, cfg.size, out.parent / "data", jobs, rendered)
+    t1 = time.perf_counter()
+    with tqdm(total=cfg.epochs, desc=f"train on {len(samples)} views", unit="epoch") as bar:
+        def trained(epoch: int, epochs: int, fig: dict[str, float]) -> None:
+            bar.update(1)
+            bar.set_postfix({k: round(v, 4) for k, v in fig.items() if k != "seconds"})
+
+        net = train_network(samples, cfg, threads=max(jobs, 1), progress=trained)
+    meta = net.meta | {"render_s": round(t1 - t0, 1), "train_s": round(time.perf_counter() - t1, 1),
+                       "mocap": str(root), "training_takes": len(entries)}
+    save_appearance(out, replace(net, meta=meta))
+    return meta
+
+
+def _cmd_train_appearance(args: argparse.Namespace) -> int:
+    from .appearance import default_appearance_path
+
+    out = Path(args.out) if args.out else default_appearance_path()
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs)
+    val = ("validation RMS x / y / z " + " / ".join(f"{100 * meta[k]:.1f}" for k in ("val_rms_x", "val_rms_y",
+                                                                                     "val_rms_z"))
+           + " % of the height" if "val_rms_z" in meta else "no validation takes")
+    print(f"appearance network: {meta['samples']} training views of {meta['training_takes']} takes, {val}; "
+          f"rendering {meta['render_s']:.0f} s, training {meta['train_s']:.0f} s -> {out}")
+    return 0
 
 
 def _gesture_scripts(dirs: Sequence[str]) -> list[Path]:
@@ -246,6 +359,9 @@ def _config(args: argparse.Namespace) -> Any:
         cfg = replace(cfg, smoothing=None)
     if args.pose == "map":
         cfg = replace(cfg, use_mean_pose=False)
+    net = ensure_appearance(getattr(args, "appearance", None), train_if_missing=False)
+    if net is not None:
+        cfg = replace(cfg, appearance=net)
     return cfg
 
 

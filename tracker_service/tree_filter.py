@@ -309,10 +309,30 @@ def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArr
     return params.skin_weight * c
 
 
+def _leaf_cues(leaves: NDArray[np.int64], places: NDArray[np.float64], params: FilterParams,
+               shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None,
+               appearance_cost: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None
+               ) -> NDArray[np.float64] | None:
+    """The leaf level's extra negative log likelihood: the shoe and appearance cues, each weighted
+    and taken relative to its cheapest leaf (None: neither applies)."""
+    out = None
+    if shoe_cost is not None and params.shoe_weight > 0:
+        c = shoe_cost(leaves, places)
+        if c is not None:
+            out = params.shoe_weight * (c - c.min())
+    if appearance_cost is not None and params.appearance_weight > 0:
+        c = appearance_cost(leaves)
+        a = params.appearance_weight * (c - c.min())
+        out = a if out is None else out + a
+    return out
+
+
 def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
          observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None,
          observed_rows: NDArray[np.float64] | None = None,
          shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None = None,
+         appearance_cost: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None = None,
+         proposals: NDArray[np.int64] | None = None,
          ) -> tuple[FilterState, Estimate]:
     """One frame of tree-based filtering.
 
@@ -335,6 +355,16 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         ``shoe_cost(leaves (n,) int64, places (n, 3)) -> (n,) float64 or None``: the shoe cue's
         cost of leaves at placements (:func:`tracker_service.shoes.feet_cost`), added to eq. 6's
         negative log likelihood at the leaf level times ``params.shoe_weight``.
+    appearance_cost : callable, optional
+        ``appearance_cost(leaves (n,) int64) -> (n,) float64``: the appearance cue's cost of leaves
+        (:func:`tracker_service.appearance.joints_cost`), added to the leaf level's negative log
+        likelihood times ``params.appearance_weight``.
+    proposals : (n,) int64, optional
+        Leaves proposed by another estimator (the appearance cue's nearest leaves,
+        :func:`tracker_service.appearance.propose_leaves`): evaluated at the leaf level beside the
+        tree's own candidates, each on the refinement grid (±2 px, ±1 %) around its predicted
+        placement (both hypotheses of :func:`_node_predictions` when the height hypothesis is on),
+        with its prior from the motion model like every other leaf.
 
     Returns
     -------
@@ -402,16 +432,31 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
                                            np.ascontiguousarray(node_place, np.float64),
                                            cols[lvl] if cols else np.zeros(0), cols[lvl + 1] if cols else np.zeros(0),
                                            bool(cols))
-    leaves = nodes
-    shoe_c = None
-    if shoe_cost is not None and params.shoe_weight > 0:
-        c = shoe_cost(leaves, node_place)
-        if c is not None:
-            shoe_c = params.shoe_weight * (c - c.min())
-            cost = cost + shoe_c
-            logpost = np.log(np.maximum(post, 1e-300)) - shoe_c
+    if proposals is not None and len(proposals):
+        extra = np.setdiff1d(np.asarray(proposals, np.int64), nodes)
+        if len(extra):  # the appearance cue's leaves, each on a small grid around its own predictions
+            last = n_levels - 1
+            ex_pred = _node_predictions(db, last, extra, pred, w_obs, obs, sil_rows, s_range)
+            t_ex, p_ex, n_ex = _level_cost(db, features[last], last, extra, ex_pred, ex_pred, params,
+                                           motion_scale, skin, slice(None), _offsets(2.0, 0.01, 3, 3))
+            evals[-1] += n_ex
+            b_ex = np.argmin(t_ex, axis=1)
+            r_ex = np.arange(len(extra))
+            c_ex = t_ex[r_ex, b_ex]
+            prior_ex = all_priors[bounds[last]: bounds[last + 1]][extra]
+            logpost = np.concatenate([logpost, np.log(np.maximum(prior_ex, 1e-300)) - c_ex])
+            nodes = np.concatenate([nodes, extra])
+            cost = np.concatenate([cost, c_ex])
+            node_place = np.concatenate([node_place, p_ex[r_ex, b_ex]])
             post = np.exp(logpost - logpost.max())
             post /= post.sum()
+    leaves = nodes
+    leaf_c = _leaf_cues(leaves, node_place, params, shoe_cost, appearance_cost)
+    if leaf_c is not None:
+        cost = cost + leaf_c
+        logpost = np.log(np.maximum(post, 1e-300)) - leaf_c
+        post = np.exp(logpost - logpost.max())
+        post /= post.sum()
     order = np.argsort(-post)
     # refine the placement of the best leaves at full resolution
     top = order[: params.refine]
@@ -421,8 +466,8 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs, sil_rows, s_range)
     total = _cost(d_ref, places, top_pred, params.sigma[-1], params, motion_scale)
     total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
-    if shoe_c is not None:
-        total = total + shoe_c[top, None]
+    if leaf_c is not None:
+        total = total + leaf_c[top, None]
     best = np.argmin(total, axis=1)
     rows = np.arange(len(top))
     lp = np.log(np.maximum(post[top], 1e-300)) + cost[top] - total[rows, best]

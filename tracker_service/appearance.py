@@ -1,0 +1,391 @@
+"""The appearance cue: where the joints are in depth, read from the person's colour image.
+
+The silhouette does not say which leg is forward, how far a hand is in front of the chest or how
+much the torso leans towards the camera, and on such frames the filter's support holds the right
+leaf but ranks a depth-ambiguous one above it (docs/TRACKER.md, session 9). Inside the silhouette
+the image does carry it: shading, which limb hides which, the stripes of a shirt cut by an arm in
+front of it. This module reads that with a small convolutional network trained on rendered views
+of the training recordings (:mod:`tracker_service.appearance_train`; the Kinect body-part
+classifier was trained on synthetic renders of motion capture the same way):
+
+1. :func:`person_crop` cuts a square around the observed silhouette and scales it to the
+   network's input (``S x S``): colour times the mask, and the mask itself, so that the room
+   behind the person plays no part;
+2. :func:`predict_joints` runs the network (numpy, im2col + BLAS; the convolutions' batch norms
+   are folded into their weights when the network is exported) and returns, for every joint, its
+   position relative to the pelvis in the camera's axes divided by the person's height, with a
+   variance per coordinate (the network was trained with a Gaussian negative log likelihood);
+3. :func:`joints_cost` scores template leaves: ``0.5 sum_j sum_c (mu_jc - x_jc)^2 / var_jc`` over
+   the chosen coordinates, where ``x`` are the leaf's joints in the same frame
+   (:func:`leaf_camera_joints`, computed once when the database is loaded).
+
+The cost joins the filter's leaf likelihood with a weight (``FilterParams.appearance_weight``);
+measured in docs/TRACKER.md (session 24).
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.kinematics import fk
+from protocol.skeleton import N_JOINTS, Body
+
+from .camera import Camera
+
+__all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "Layer",
+           "default_appearance_path", "forward", "joints_cost", "leaf_camera_joints", "leaf_joints3d_arrays",
+           "load_appearance",
+           "net_input", "person_crop", "predict_joints", "propose_leaves", "save_appearance"]
+
+APPEARANCE_FORMAT = "mocap-appearance-net"
+#: Bump on any change of the input, the output or the layers' meaning.
+APPEARANCE_VERSION = 1
+#: The crop's side is this many times the silhouette box's longer side.
+CROP_MARGIN = 1.15
+_REBUILD = "rebuild it with: mocap-tracker train-appearance --out {path}"
+#: Log variances are clipped to this range (as in training).
+LOG_VAR_RANGE = (-12.0, 4.0)
+
+
+class AppearanceError(RuntimeError):
+    """A network file that cannot be used; the message says why and how to rebuild it."""
+
+
+def default_appearance_path() -> Path:
+    """``<repo>/out/appearance/net.npz``: where ``train-appearance`` writes and ``run``/``eval`` look."""
+    return Path(__file__).resolve().parents[1] / "out" / "appearance" / "net.npz"
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One layer of the network.
+
+    Attributes
+    ----------
+    kind : {'conv', 'dense'}
+    weight : float32 array
+        ``conv``: (O, C, 3, 3) with the batch norm folded in; ``dense``: (O, I).
+    bias : (O,) float32
+    stride : int
+        Convolution stride (``conv`` only; padding 1).
+    pool : bool
+        A 2 x 2 max pool after the ReLU (``conv`` only).
+    relu : bool
+    """
+
+    kind: str
+    weight: NDArray[np.float32]
+    bias: NDArray[np.float32]
+    stride: int = 1
+    pool: bool = False
+    relu: bool = True
+    #: The weights as the matrix of one product: ``(9 C, O)`` rows in (dy, dx, c) order for a
+    #: convolution, ``(I, O)`` for a dense layer (derived).
+    matrix: NDArray[np.float32] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.weight, np.float32)
+        m = w.transpose(2, 3, 1, 0).reshape(-1, w.shape[0]) if w.ndim == 4 else w.T
+        object.__setattr__(self, "matrix", np.ascontiguousarray(m))
+
+
+@dataclass(frozen=True)
+class AppearanceNet:
+    """The trained network and what it was trained for.
+
+    Attributes
+    ----------
+    size : int
+        Input side ``S`` (pixels).
+    layers : tuple of Layer
+    meta : dict
+        Training information (takes, samples, epochs, validation error).
+    """
+
+    size: int
+    layers: tuple[Layer, ...]
+    meta: dict[str, Any]
+
+    @property
+    def n_outputs(self) -> int:
+        return int(self.layers[-1].weight.shape[0])
+
+
+def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int
+                ) -> tuple[NDArray[np.uint8], NDArray[np.bool_]] | None:
+    """The person's square crop at the network's input size.
+
+    Parameters
+    ----------
+    frame : (H, W, 3) uint8
+        BGR camera frame.
+    mask : (H, W) bool
+        The silhouette.
+    size : int
+
+    Returns
+    -------
+    crop : (size, size, 3) uint8
+    crop_mask : (size, size) bool
+    None when the mask is empty.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    if not len(rows):
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    side = CROP_MARGIN * max(y1 - y0, x1 - x0)
+    k = size / side
+    m = np.array([[k, 0.0, size / 2 - 0.5 * (x0 + x1) * k], [0.0, k, size / 2 - 0.5 * (y0 + y1) * k]])
+    crop = np.asarray(cv2.warpAffine(frame, m, (size, size), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_REPLICATE),
+                      np.uint8)
+    cm = np.asarray(cv2.warpAffine(mask.astype(np.uint8) * 255, m, (size, size), flags=cv2.INTER_AREA) > 127)
+    return crop, cm
+
+
+def net_input(crop: NDArray[np.uint8], crop_mask: NDArray[np.bool_]) -> NDArray[np.float32]:
+    """The network's input: ``(colour / 255 - 0.5) * mask`` and the mask, ``(S, S, 4)`` float32."""
+    m = crop_mask.astype(np.float32)[..., None]
+    x = (crop.astype(np.float32) * np.float32(1.0 / 255.0) - np.float32(0.5)) * m
+    return np.concatenate([x, m], axis=-1)
+
+
+def _conv(x: NDArray[np.float32], layer: Layer) -> NDArray[np.float32]:
+    """3 x 3 convolution, padding 1, of ``x`` (H, W, C): the nine shifted copies side by side
+    (im2col) and one matrix product."""
+    h, w, c = x.shape
+    s = layer.stride
+    ho, wo = (h - 1) // s + 1, (w - 1) // s + 1
+    xp = np.zeros((h + 2, w + 2, c), np.float32)
+    xp[1:-1, 1:-1] = x
+    cols = np.empty((ho, wo, 9 * c), np.float32)
+    for k in range(9):
+        dy, dx = divmod(k, 3)
+        cols[:, :, k * c: (k + 1) * c] = xp[dy: dy + s * (ho - 1) + 1: s, dx: dx + s * (wo - 1) + 1: s]
+    y = cols.reshape(ho * wo, 9 * c) @ layer.matrix
+    y += layer.bias
+    return y.reshape(ho, wo, -1)
+
+
+def forward(net: AppearanceNet, x: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The network's raw output for one input.
+
+    Parameters
+    ----------
+    net : AppearanceNet
+    x : (S, S, 4) float32
+        :func:`net_input`.
+
+    Returns
+    -------
+    (n_outputs,) float32
+    """
+    h: NDArray[np.float32] = np.asarray(x, np.float32)
+    for layer in net.layers:
+        if layer.kind == "conv":
+            h = _conv(h, layer)
+            if layer.relu:
+                np.maximum(h, 0.0, out=h)
+            if layer.pool:
+                a, b, c = h.shape
+                h = h[: a // 2 * 2, : b // 2 * 2].reshape(a // 2, 2, b // 2, 2, c).max(axis=(1, 3))
+        else:
+            if h.ndim == 3:  # flatten in the training framework's (C, H, W) order
+                h = np.ascontiguousarray(h.transpose(2, 0, 1)).reshape(-1)
+            h = h @ layer.matrix + layer.bias
+            if layer.relu:
+                np.maximum(h, 0.0, out=h)
+    return h
+
+
+def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[np.bool_]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The joints' positions relative to the pelvis, camera axes, in units of the person's height.
+
+    Parameters
+    ----------
+    net : AppearanceNet
+    frame : (H, W, 3) uint8
+    mask : (H, W) bool
+
+    Returns
+    -------
+    mu : (J, 3) float64
+    var : (J, 3) float64
+        The network's variance of each coordinate.
+    None when the mask is empty.
+    """
+    c = person_crop(frame, mask, net.size)
+    if c is None:
+        return None
+    out = forward(net, net_input(*c)).astype(np.float64)
+    n = N_JOINTS * 3
+    mu = out[:n].reshape(N_JOINTS, 3)
+    var = np.exp(np.clip(out[n: 2 * n], *LOG_VAR_RANGE)).reshape(N_JOINTS, 3)
+    return mu, var
+
+
+def leaf_camera_joints(leaf_poses: NDArray[Any], body: Body, camera: Camera, batch: int = 8192) -> NDArray[np.float32]:
+    """Every leaf's joints relative to its pelvis, in the camera's axes, over the body's height.
+
+    Parameters
+    ----------
+    leaf_poses : (NL, P) float
+    body : Body
+    camera : Camera
+
+    Returns
+    -------
+    (NL, J, 3) float32
+    """
+    r = camera.pose[:3, :3]
+    out = np.empty((len(leaf_poses), N_JOINTS, 3), np.float32)
+    for s in range(0, len(leaf_poses), batch):
+        p = np.array(leaf_poses[s: s + batch], np.float64)
+        p[:, :3] = 0.0
+        j = fk(p, body)
+        out[s: s + batch] = ((j - j[:, :1]) @ r) / body.height
+    return out
+
+
+def leaf_joints3d_arrays(leaf_poses: NDArray[Any], body: Body, camera: Camera
+                         ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``(leaf_joints3d, leaf_joints3d_sq)``: :func:`leaf_camera_joints` and its squares, the
+    :class:`~tracker_service.filter_model.FilterDB` fields of the appearance cue."""
+    j = leaf_camera_joints(leaf_poses, body, camera)
+    return j, j * j
+
+
+def joints_cost(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
+                coords: tuple[int, ...] = (0, 1, 2)) -> NDArray[np.float64]:
+    """Negative log likelihood (up to a constant) of leaves' joints under the network's Gaussian.
+
+    Parameters
+    ----------
+    mu, var : (J, 3) float64
+        :func:`predict_joints`.
+    leaf_joints : (n, J, 3) float32
+        :func:`leaf_camera_joints` of the leaves to score.
+    coords : tuple of int
+        Coordinates that count (0 = x right, 1 = y up, 2 = z towards the camera).
+
+    Returns
+    -------
+    (n,) float64
+    """
+    c = list(coords)
+    d = leaf_joints[:, :, c].astype(np.float64) - mu[None, :, c]
+    return 0.5 * np.einsum("njc,jc->n", d * d, 1.0 / var[:, c])
+
+
+def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
+                   leaf_joints_sq: NDArray[np.float32], k: int, allowed: NDArray[np.bool_] | None = None
+                   ) -> NDArray[np.int64]:
+    """The ``k`` leaves the network's Gaussian likes best (ELMO's retrieval of hypotheses from the
+    observation, over the whole database).
+
+    The cost of :func:`joints_cost` over every coordinate, expanded as
+    ``0.5 (sum x^2 / var - 2 sum x mu / var) + const`` so that it is two matrix-vector products.
+
+    Parameters
+    ----------
+    mu, var : (J, 3) float64
+    leaf_joints : (NL, J, 3) float32
+        :func:`leaf_camera_joints` of every leaf.
+    leaf_joints_sq : (NL, J, 3) float32
+        Their squares.
+    k : int
+    allowed : (NL,) bool, optional
+        Leaves that may be proposed (e.g. headings near the current one).
+
+    Returns
+    -------
+    (min(k, n_allowed),) int64
+        Leaf indices, best first.
+    """
+    nl = len(leaf_joints)
+    inv = (1.0 / var).ravel().astype(np.float32)
+    c = leaf_joints_sq.reshape(nl, -1) @ inv - 2.0 * (leaf_joints.reshape(nl, -1) @ (mu.ravel().astype(np.float32)
+                                                                                     * inv))
+    if allowed is not None:
+        c = np.where(allowed, c, np.inf)
+    n = int(np.isfinite(c).sum())
+    k = min(k, n)
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    idx = np.argpartition(c, k - 1)[:k]
+    return np.asarray(idx[np.argsort(c[idx], kind="stable")], np.int64)
+
+
+def save_appearance(path: str | Path, net: AppearanceNet) -> Path:
+    """Write a network file (``.npz``: the layers' arrays and a JSON header with a CRC-32 of each)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, NDArray[Any]] = {}
+    spec = []
+    for i, layer in enumerate(net.layers):
+        arrays[f"w{i}"] = np.ascontiguousarray(layer.weight, np.float32)
+        arrays[f"b{i}"] = np.ascontiguousarray(layer.bias, np.float32)
+        spec.append({"kind": layer.kind, "stride": layer.stride, "pool": layer.pool, "relu": layer.relu,
+                     "crc_w": zlib.crc32(arrays[f"w{i}"].tobytes()), "crc_b": zlib.crc32(arrays[f"b{i}"].tobytes())})
+    header = {"format": APPEARANCE_FORMAT, "version": APPEARANCE_VERSION, "size": net.size, "layers": spec,
+              "meta": net.meta}
+    tmp = p.with_name(p.name + ".partial.npz")
+    arrays["header"] = np.array(json.dumps(header, default=float))
+    np.savez(tmp, **arrays)  # type: ignore[arg-type]
+    tmp.replace(p)
+    return p
+
+
+def load_appearance(path: str | Path) -> AppearanceNet:
+    """Read and check a network file.
+
+    Raises
+    ------
+    AppearanceError
+        Missing, truncated, corrupt, stale or inconsistent file (with a rebuild hint).
+    """
+    p = Path(path)
+    hint = _REBUILD.format(path=p)
+    if not p.is_file():
+        raise AppearanceError(f"no appearance network at {p}; {hint}")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            header = json.loads(str(z["header"]))
+            arrays = {k: np.asarray(z[k]) for k in z.files if k != "header"}
+    except (OSError, ValueError, KeyError, EOFError, zlib.error, zipfile.BadZipFile) as e:
+        raise AppearanceError(f"cannot read {p} (truncated or corrupt: {type(e).__name__}: {e}); {hint}") from None
+    if not isinstance(header, dict) or header.get("format") != APPEARANCE_FORMAT:
+        raise AppearanceError(f"{p} is not an appearance network; {hint}")
+    if header.get("version") != APPEARANCE_VERSION:
+        raise AppearanceError(f"stale appearance network at {p} (format v{header.get('version')}, this program "
+                              f"needs v{APPEARANCE_VERSION}); {hint}")
+    try:
+        layers = []
+        for i, s in enumerate(header["layers"]):
+            w, b = arrays[f"w{i}"], arrays[f"b{i}"]
+            if zlib.crc32(np.ascontiguousarray(w).tobytes()) != s["crc_w"] or \
+                    zlib.crc32(np.ascontiguousarray(b).tobytes()) != s["crc_b"]:
+                raise AppearanceError(f"{p} is corrupt (checksum mismatch in layer {i}); {hint}")
+            if s["kind"] not in ("conv", "dense") or w.dtype != np.float32 or b.shape != (w.shape[0],) or \
+                    (s["kind"] == "conv" and w.shape[2:] != (3, 3)) or (s["kind"] == "dense" and w.ndim != 2):
+                raise AppearanceError(f"{p}: layer {i} has inconsistent shapes {w.shape} / {b.shape}; {hint}")
+            layers.append(Layer(s["kind"], w, b, int(s["stride"]), bool(s["pool"]), bool(s["relu"])))
+        net = AppearanceNet(size=int(header["size"]), layers=tuple(layers), meta=dict(header.get("meta", {})))
+        probe = forward(net, np.zeros((net.size, net.size, 4), np.float32))
+    except AppearanceError:
+        raise
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise AppearanceError(f"inconsistent appearance network at {p} ({type(e).__name__}: {e}); {hint}") from None
+    if probe.shape != (2 * N_JOINTS * 3,):
+        raise AppearanceError(f"{p} outputs {probe.shape[0]} values, expected {2 * N_JOINTS * 3}; {hint}")
+    return net

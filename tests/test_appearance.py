@@ -136,14 +136,46 @@ def test_proposals_are_the_cheapest_leaves_by_joints_cost(rng: np.random.Generat
     mu = leaves[17].astype(np.float64) + rng.normal(0, 0.01, (N_JOINTS, 3))
     var = rng.uniform(0.001, 0.01, (N_JOINTS, 3))
     cost = joints_cost(mu, var, leaves)
-    got = propose_leaves(mu, var, leaves, leaves * leaves, 10)
+    got = propose_leaves(mu, var, leaves, 10)
     assert got.dtype == np.int64 and got[0] == 17
     assert np.array_equal(got, np.argsort(cost)[:10])
     allowed = np.arange(500) % 2 == 0
-    got = propose_leaves(mu, var, leaves, leaves * leaves, 10, allowed)
+    got = propose_leaves(mu, var, leaves, 10, allowed)
     assert np.array_equal(got, np.flatnonzero(allowed)[np.argsort(cost[allowed])[:10]])
-    assert len(propose_leaves(mu, var, leaves, leaves * leaves, 10, np.zeros(500, bool))) == 0
-    assert len(propose_leaves(mu, var, leaves, leaves * leaves, 900)) == 500
+    assert len(propose_leaves(mu, var, leaves, 10, np.zeros(500, bool))) == 0
+    assert len(propose_leaves(mu, var, leaves, 900)) == 500
+
+
+def test_heading_window_is_an_arc_on_the_circle() -> None:
+    from tracker_service.appearance import HeadingWindow
+
+    h = np.radians(np.array([-179.0, -100.0, -60.0, 0.0, 60.0, 100.0, 179.0], np.float32))
+    assert HeadingWindow(0.0, np.radians(90)).mask(h).tolist() == [False, False, True, True, True, False, False]
+    # across +-180 degrees
+    assert HeadingWindow(np.pi, np.radians(30)).mask(h).tolist() == [True, False, False, False, False, False, True]
+    assert HeadingWindow(0.0, np.pi, np.radians(70)).mask(h).tolist() == [False, False, True, True, True, False, False]
+
+
+@pytest.mark.parametrize("centre,half,max_abs", [(0.0, np.pi / 2, np.inf), (2.9, 1.0, np.inf), (-0.4, 1.0, 0.6)])
+def test_proposal_kernel_equals_the_numpy_reference(centre: float, half: float, max_abs: float,
+                                                    rng: np.random.Generator) -> None:
+    from tracker_service._kernels import proposal_cost_kernel
+    from tracker_service.appearance import HeadingWindow, propose_leaves, propose_leaves_in_window
+
+    n = 3000
+    leaves = rng.normal(0, 0.2, (n, N_JOINTS, 3)).astype(np.float32)
+    heading = rng.uniform(-np.pi, np.pi, n).astype(np.float32)
+    mu = leaves[5].astype(np.float64) + rng.normal(0, 0.05, (N_JOINTS, 3))
+    var = rng.uniform(0.001, 0.01, (N_JOINTS, 3))
+    window = HeadingWindow(centre, half, max_abs)
+    inside = window.mask(heading)
+    assert 0 < inside.sum() < n
+    c = proposal_cost_kernel(leaves.reshape(n, -1), (1.0 / var).ravel(), mu.ravel(), heading, centre, half, max_abs)
+    assert np.array_equal(np.isfinite(c), inside)
+    want = 2.0 * joints_cost(mu, var, leaves) - float((mu * mu / var).sum())  # the same cost without its constant
+    assert np.allclose(c[inside], want[inside], rtol=1e-4, atol=1e-3)
+    got = propose_leaves_in_window(mu, var, leaves, 32, heading, window)
+    assert np.array_equal(got, propose_leaves(mu, var, leaves, 32, inside))
 
 
 def test_predict_joints_reads_the_network(rng: np.random.Generator) -> None:

@@ -30,7 +30,7 @@ import zipfile
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -39,12 +39,13 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk
 from protocol.skeleton import N_JOINTS, Body
 
+from ._kernels import proposal_cost_kernel
 from .camera import Camera
 
-__all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "Layer",
-           "default_appearance_path", "forward", "joints_cost", "leaf_camera_joints", "leaf_joints3d_arrays",
-           "load_appearance",
-           "net_input", "person_crop", "predict_joints", "propose_leaves", "save_appearance"]
+__all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
+           "Layer", "default_appearance_path", "forward", "joints_cost", "leaf_camera_joints",
+           "load_appearance", "net_input", "person_crop", "predict_joints", "propose_leaves",
+           "propose_leaves_in_window", "save_appearance"]
 
 APPEARANCE_FORMAT = "mocap-appearance-net"
 #: Bump on any change of the input, the output or the layers' meaning.
@@ -257,14 +258,6 @@ def leaf_camera_joints(leaf_poses: NDArray[Any], body: Body, camera: Camera, bat
     return out
 
 
-def leaf_joints3d_arrays(leaf_poses: NDArray[Any], body: Body, camera: Camera
-                         ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """``(leaf_joints3d, leaf_joints3d_sq)``: :func:`leaf_camera_joints` and its squares, the
-    :class:`~tracker_service.filter_model.FilterDB` fields of the appearance cue."""
-    j = leaf_camera_joints(leaf_poses, body, camera)
-    return j, j * j
-
-
 def joints_cost(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
                 coords: tuple[int, ...] = (0, 1, 2)) -> NDArray[np.float64]:
     """Negative log likelihood (up to a constant) of leaves' joints under the network's Gaussian.
@@ -287,22 +280,43 @@ def joints_cost(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: 
     return 0.5 * np.einsum("njc,jc->n", d * d, 1.0 / var[:, c])
 
 
-def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
-                   leaf_joints_sq: NDArray[np.float32], k: int, allowed: NDArray[np.bool_] | None = None
-                   ) -> NDArray[np.int64]:
+class HeadingWindow(NamedTuple):
+    """Leaf headings the appearance cue may propose: within ``half_width`` of ``centre`` (radians,
+    on the circle) and at most ``max_abs`` from facing the camera."""
+
+    centre: float
+    half_width: float
+    max_abs: float = float(np.inf)
+
+    def mask(self, heading: NDArray[np.floating[Any]]) -> NDArray[np.bool_]:
+        """(NL,) bool of the leaves inside the window (the reference of the kernel's test)."""
+        h = np.asarray(heading, np.float64)
+        d = np.remainder(h - self.centre + np.pi, 2 * np.pi) - np.pi
+        return np.asarray((np.abs(d) <= self.half_width) & (np.abs(h) <= self.max_abs), bool)
+
+
+def _best_k(c: NDArray[np.float64], k: int) -> NDArray[np.int64]:
+    """Indices of the ``k`` smallest finite entries of ``c``, smallest first."""
+    k = min(k, int(np.isfinite(c).sum()))
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    idx = np.argpartition(c, k - 1)[:k]
+    return np.asarray(idx[np.argsort(c[idx], kind="stable")], np.int64)
+
+
+def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32], k: int,
+                   allowed: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """The ``k`` leaves the network's Gaussian likes best (ELMO's retrieval of hypotheses from the
-    observation, over the whole database).
+    observation, over the whole database). Plain-numpy reference of :func:`propose_leaves_in_window`.
 
     The cost of :func:`joints_cost` over every coordinate, expanded as
-    ``0.5 (sum x^2 / var - 2 sum x mu / var) + const`` so that it is two matrix-vector products.
+    ``0.5 (sum x^2 / var - 2 sum x mu / var) + const``.
 
     Parameters
     ----------
     mu, var : (J, 3) float64
     leaf_joints : (NL, J, 3) float32
         :func:`leaf_camera_joints` of every leaf.
-    leaf_joints_sq : (NL, J, 3) float32
-        Their squares.
     k : int
     allowed : (NL,) bool, optional
         Leaves that may be proposed (e.g. headings near the current one).
@@ -312,18 +326,37 @@ def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joint
     (min(k, n_allowed),) int64
         Leaf indices, best first.
     """
-    nl = len(leaf_joints)
-    inv = (1.0 / var).ravel().astype(np.float32)
-    c = leaf_joints_sq.reshape(nl, -1) @ inv - 2.0 * (leaf_joints.reshape(nl, -1) @ (mu.ravel().astype(np.float32)
-                                                                                     * inv))
+    x = leaf_joints.reshape(len(leaf_joints), -1).astype(np.float64)
+    inv = (1.0 / var).ravel()
+    c = (x * x) @ inv - 2.0 * (x @ (mu.ravel() * inv))
     if allowed is not None:
         c = np.where(allowed, c, np.inf)
-    n = int(np.isfinite(c).sum())
-    k = min(k, n)
-    if k <= 0:
-        return np.zeros(0, np.int64)
-    idx = np.argpartition(c, k - 1)[:k]
-    return np.asarray(idx[np.argsort(c[idx], kind="stable")], np.int64)
+    return _best_k(c, k)
+
+
+def propose_leaves_in_window(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
+                             k: int, heading: NDArray[np.float32], window: HeadingWindow) -> NDArray[np.int64]:
+    """:func:`propose_leaves` among the leaves whose heading is in ``window``, by one numba pass
+    over the joints (``_kernels.proposal_cost_kernel``; 2.2 -> 1 ms a frame for 47,105 leaves).
+
+    Parameters
+    ----------
+    mu, var : (J, 3) float64
+    leaf_joints : (NL, J, 3) float32
+    k : int
+    heading : (NL,) float32
+        The leaves' headings (``FilterDB.leaf_heading``).
+    window : HeadingWindow
+
+    Returns
+    -------
+    (min(k, n_allowed),) int64
+        Leaf indices, best first.
+    """
+    c = proposal_cost_kernel(leaf_joints.reshape(len(leaf_joints), -1), np.ascontiguousarray((1.0 / var).ravel()),
+                             np.ascontiguousarray(mu.ravel(), np.float64), np.asarray(heading, np.float32),
+                             float(window.centre), float(window.half_width), float(window.max_abs))
+    return _best_k(c, k)
 
 
 def save_appearance(path: str | Path, net: AppearanceNet) -> Path:

@@ -26,7 +26,7 @@ from protocol.motion import Motion, load_motion
 from protocol.rotations import matrix_to_quat, matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX, N_PARTS, PARTS, POSE_SIZE, ROT_JOINTS, Body
 
-from .appearance import leaf_joints3d_arrays
+from .appearance import leaf_camera_joints
 from .camera import Camera, default_camera
 from .features import LEVEL_SIZES
 from .placement import placement_columns, placement_rows
@@ -310,7 +310,6 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     level_scale = tuple(c.width / cam.width for c in cams)
     level_column, ref_column = placement_columns(level_runs, level_scale, cam)
     level_bottom, level_top, ref_bottom = placement_rows(level_runs, level_scale, cam)
-    j3d, j3d_sq = leaf_joints3d_arrays(leaf_poses, body, cam)
     db = FilterDB(
         tree=tree, level_runs=level_runs, level_scale=level_scale,
         center=(cam.cx, cam.cy), leaf_poses=leaf_poses.astype(np.float32), leaf_visible=vis,
@@ -320,7 +319,7 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         level_column=level_column, ref_column=ref_column,
         level_bottom=level_bottom, level_top=level_top, ref_bottom=ref_bottom,
         leaf_points=cam.project(joints[leaf_tpl]).astype(np.float32),  # the leaves' joints, already posed
-        leaf_joints3d=j3d, leaf_joints3d_sq=j3d_sq,
+        leaf_joints3d=leaf_camera_joints(leaf_poses, body, cam),
     )
     stats["total_s"] = time.perf_counter() - t0
     log.info("database: %s", stats)

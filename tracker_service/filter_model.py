@@ -66,9 +66,6 @@ class FilterDB:
     leaf_joints3d : (NL, J, 3) float32, optional
         Every leaf's joints relative to its pelvis in the camera's axes, over the body's height
         (:func:`tracker_service.appearance.leaf_camera_joints`); empty: no appearance cue.
-    leaf_joints3d_sq : (NL, J, 3) float32, optional
-        Their squares (the appearance cue's proposals over the whole database,
-        :func:`tracker_service.appearance.propose_leaves`).
     """
 
     tree: TemplateTree
@@ -92,7 +89,6 @@ class FilterDB:
     ref_bottom: float = float("nan")
     leaf_points: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2), np.float32))
     leaf_joints3d: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 3), np.float32))
-    leaf_joints3d_sq: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, N_JOINTS, 3), np.float32))
 
     @property
     def n_leaves(self) -> int:

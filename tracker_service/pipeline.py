@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, N_PARTS, Body
 
-from .appearance import AppearanceNet, joints_cost, predict_joints, propose_leaves
+from .appearance import AppearanceNet, HeadingWindow, joints_cost, predict_joints, propose_leaves_in_window
 from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
@@ -203,19 +203,16 @@ def _feet_offset(pose: NDArray[np.float64], body: Body, db_body: Body, scale: fl
     return float(scale * fk(rel, db_body)[_FEET, 1].min() - fk(rel, body)[_FEET, 1].min())
 
 
-def _headings_near(fstate: FilterState, db: FilterDB, params: FilterParams) -> NDArray[np.bool_]:
-    """Leaves whose heading is within ``params.max_turn`` of the filter's current one (facing the
-    camera when it has none) and within ``params.max_heading``: where the appearance cue may propose."""
-    h = db.leaf_heading
+def _heading_window(fstate: FilterState, db: FilterDB, params: FilterParams) -> HeadingWindow:
+    """Where the appearance cue may propose: headings within ``params.max_turn`` of the filter's
+    current one (its support's circular mean; facing the camera when it has none) and within
+    ``params.max_heading``."""
     if len(fstate.leaves):
-        cur = h[fstate.leaves].astype(np.float64)
-        mean = float(np.arctan2(fstate.weights @ np.sin(cur), fstate.weights @ np.cos(cur)))
-        ok = np.abs(np.remainder(h - mean + np.pi, 2 * np.pi) - np.pi) <= params.max_turn
+        cur = db.leaf_heading[fstate.leaves].astype(np.float64)
+        centre, half = float(np.arctan2(fstate.weights @ np.sin(cur), fstate.weights @ np.cos(cur))), params.max_turn
     else:
-        ok = db.leaf_facing
-    if params.max_heading is not None:
-        ok = ok & (np.abs(h) <= params.max_heading)
-    return np.asarray(ok, bool)
+        centre, half = 0.0, np.pi / 2
+    return HeadingWindow(centre, half, np.inf if params.max_heading is None else params.max_heading)
 
 
 def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
@@ -309,10 +306,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             def leaf_appearance_cost(leaves: NDArray[np.int64]) -> NDArray[np.float64]:
                 return joints_cost(mu, var, db.leaf_joints3d[leaves], coords)
 
-            if config.filter.appearance_proposals > 0 and len(db.leaf_joints3d_sq):
-                proposals = propose_leaves(mu, var, db.leaf_joints3d, db.leaf_joints3d_sq,
-                                           config.filter.appearance_proposals,
-                                           _headings_near(fstate, db, config.filter))
+            if config.filter.appearance_proposals > 0:
+                proposals = propose_leaves_in_window(mu, var, db.leaf_joints3d, config.filter.appearance_proposals,
+                                                     db.leaf_heading, _heading_window(fstate, db, config.filter))
     ms["appearance"] = (time.perf_counter() - ta) * 1e3
     fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask), leaf_shoe_cost,
                        leaf_appearance_cost, proposals)

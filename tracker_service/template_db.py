@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import Body
 
-from .appearance import leaf_joints3d_arrays
+from .appearance import leaf_camera_joints
 from .camera import Camera
 from .placement import placement_columns, placement_rows
 from .silhouette_distance import RunSet
@@ -185,7 +185,6 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
         level_scale = tuple(float(v) for v in man["level_scale"])
         level_column, ref_column = placement_columns(runs, level_scale, cam)
         level_bottom, level_top, ref_bottom = placement_rows(runs, level_scale, cam)
-        j3d, j3d_sq = leaf_joints3d_arrays(arrays["leaf_poses"], body, cam)
         db = FilterDB(tree=tree, level_runs=runs, level_scale=level_scale,
                       center=(float(man["center"][0]), float(man["center"][1])),
                       **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
@@ -193,7 +192,7 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
                       level_column=level_column, ref_column=ref_column,
                       level_bottom=level_bottom, level_top=level_top, ref_bottom=ref_bottom,
                       leaf_points=leaf_joint_points(arrays["leaf_poses"], body, cam),
-                      leaf_joints3d=j3d, leaf_joints3d_sq=j3d_sq)
+                      leaf_joints3d=leaf_camera_joints(arrays["leaf_poses"], body, cam))
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:

@@ -176,6 +176,27 @@ def test_proposal_kernel_equals_the_numpy_reference(centre: float, half: float, 
     assert np.allclose(c[inside], want[inside], rtol=1e-4, atol=1e-3)
     got = propose_leaves_in_window(mu, var, leaves, 32, heading, window)
     assert np.array_equal(got, propose_leaves(mu, var, leaves, 32, inside))
+    depth_only = np.where(np.arange(3) == 2, var, np.inf)  # an infinite variance leaves a coordinate out
+    want_z = joints_cost(mu, var, leaves, coords=(2,))
+    got = propose_leaves_in_window(mu, depth_only, leaves, 8, heading, window)
+    assert np.array_equal(got, np.flatnonzero(inside)[np.argsort(want_z[inside])[:8]])
+    assert np.array_equal(got, propose_leaves(mu, depth_only, leaves, 8, inside))
+
+
+def test_proposal_kernel_edge_headings(rng: np.random.Generator) -> None:
+    """NaN headings or centres are outside the window (and return: no hang); a centre beyond +-pi
+    wraps; headings at exactly +-pi are the same direction."""
+    from tracker_service._kernels import proposal_cost_kernel
+    from tracker_service.appearance import HeadingWindow
+
+    leaves = rng.normal(0, 0.2, (6, 6)).astype(np.float32)
+    heading = np.array([np.pi, -np.pi, 0.0, np.nan, 3.0, -3.0], np.float32)
+    inv, mu = np.ones(6), np.zeros(6)
+    for centre, half in ((np.pi, 0.5), (-np.pi, 0.5), (7 * np.pi, 0.5), (0.0, 0.5), (1e12, 0.5), (np.nan, 0.5)):
+        c = proposal_cost_kernel(leaves, inv, mu, heading, centre, half, np.inf)
+        assert np.array_equal(np.isfinite(c), HeadingWindow(centre, half).mask(heading)), centre
+    assert not np.isfinite(proposal_cost_kernel(leaves, inv, mu, heading, np.nan, 0.5, np.inf)).any()
+    assert np.isfinite(proposal_cost_kernel(leaves, inv, mu, heading, np.pi, 0.5, np.inf)[[0, 1, 4, 5]]).all()
 
 
 def test_predict_joints_reads_the_network(rng: np.random.Generator) -> None:
@@ -225,7 +246,49 @@ def test_network_file_round_trip_and_errors(tmp_path: Path, rng: np.random.Gener
     save_appearance(tmp_path / "small.npz", small)
     with pytest.raises(AppearanceError, match="outputs 5 values"):
         load_appearance(tmp_path / "small.npz")
+    # an array file under the network's name, a layer's stride of 0, weights of a diverged training
+    np.save(tmp_path / "array.npy", np.zeros(3))
+    (tmp_path / "array.npy").rename(tmp_path / "array.npz")
+    with pytest.raises(AppearanceError, match="truncated or corrupt"):
+        load_appearance(tmp_path / "array.npz")
+    zero_stride = header | {"layers": [header["layers"][0] | {"stride": 0}, *header["layers"][1:]]}
+    np.savez(tmp_path / "s.npz", **(arrays | {"header": np.array(json.dumps(zero_stride))}))
+    with pytest.raises(AppearanceError, match="stride 0"):
+        load_appearance(tmp_path / "s.npz")
+    c0 = net.layers[0]
+    nan_net = AppearanceNet(16, (Layer("conv", np.full_like(c0.weight, np.nan), c0.bias, c0.stride, c0.pool, c0.relu),
+                                 *net.layers[1:]), {})
+    save_appearance(tmp_path / "nan.npz", nan_net)
+    with pytest.raises(AppearanceError, match="non-finite"):
+        load_appearance(tmp_path / "nan.npz")
     assert zlib.crc32(raw) == zlib.crc32(p.read_bytes())  # nothing above touched the good file
+
+
+def test_a_network_that_outputs_nan_is_ignored(rng: np.random.Generator) -> None:
+    """predict_joints gives None (the cue sits the frame out) instead of NaNs that would poison the posterior."""
+    net = constant_net(rng.normal(0, 0.2, (N_JOINTS, 3)))
+    last = net.layers[-1]
+    bias = last.bias.copy()
+    bias[3] = np.nan
+    bad = AppearanceNet(net.size, (*net.layers[:-1], Layer(last.kind, last.weight, bias, 1, False, False)), {})
+    frame = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    mask = np.zeros((60, 80), bool)
+    mask[10:50, 30:50] = True
+    assert predict_joints(net, frame, mask) is not None
+    assert predict_joints(bad, frame, mask) is None
+
+
+def test_in_view_skips_people_cut_by_the_border() -> None:
+    from tracker_service.appearance import in_view
+
+    mask = np.zeros((60, 80), bool)
+    mask[10:50, 30:50] = True
+    assert in_view(mask)
+    assert not in_view(mask, min_pixels=801)
+    for cut in (np.s_[0, 35], np.s_[59, 35], np.s_[30, 0], np.s_[30, 79]):
+        m = mask.copy()
+        m[cut] = True
+        assert not in_view(m)
 
 
 def test_training_learns_a_toy_depth_and_mirrors_the_joints(rng: np.random.Generator) -> None:

@@ -90,6 +90,7 @@ def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> Non
             _passes(bad)
 
 
+@pytest.mark.slow
 def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     """``mocap-tracker train-appearance`` on two takes, one short pass, one epoch: a network file the
     tracker loads, and its rendered views cached beside it."""
@@ -110,3 +111,8 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:0"],
                        cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "EVERY" in r.stderr
+    for flag in ("--epochs", "--takes", "--jobs"):  # 0 is an error, not "the default"
+        r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", flag, "0", "--out",
+                            str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and f"{flag} must be >= 1" in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "never.npz").exists()

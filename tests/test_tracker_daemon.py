@@ -227,3 +227,24 @@ def test_start_up_sigterm_handler_is_kept_only_for_commands_with_a_clean_stop() 
         assert signal.getsignal(signal.SIGTERM) is mine
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_per_frame_commands_run_blas_on_one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``mocap-tracker`` pins BLAS to one thread for the per-frame commands (unless the user set it),
+    and leaves every core to the batch commands (build-db, train-appearance)."""
+    import tracker_service.cli as cli
+    from tracker_service import _entry
+
+    monkeypatch.setattr(cli, "main", lambda argv: 0)
+    before = signal.getsignal(signal.SIGTERM)  # main() installs its start-up handler
+    try:
+        for cmd, want in ((["run"], "1"), (["eval", "--bvh", "x"], "1"), (["build-db"], None),
+                          (["train-appearance"], None)):
+            for name in _entry._BLAS_THREADS:
+                monkeypatch.delenv(name, raising=False)
+            assert _entry.main(cmd) == 0
+            assert os.environ.get("OPENBLAS_NUM_THREADS") == want, cmd
+        monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")  # the user's own setting wins
+        assert _entry.main(["run"]) == 0 and os.environ["OPENBLAS_NUM_THREADS"] == "2"
+    finally:
+        signal.signal(signal.SIGTERM, before)

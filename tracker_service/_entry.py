@@ -21,6 +21,8 @@ __all__ = ["default_sigterm", "main", "single_threaded_blas"]
 
 #: Environment variables that set the BLAS libraries' thread counts.
 _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+#: Batch commands that may use every core (the per-frame ones run BLAS on one thread).
+_BATCH_COMMANDS = frozenset({"build-db", "train-appearance"})
 
 
 def single_threaded_blas() -> None:
@@ -62,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         (a SIGTERM before a command's own handlers exits with status 0 by ``SystemExit``).
     """
     signal.signal(signal.SIGTERM, _stop_during_import)
-    single_threaded_blas()
+    args = sys.argv[1:] if argv is None else argv
+    if not (args and args[0] in _BATCH_COMMANDS):
+        single_threaded_blas()
     try:
         from .cli import main as cli_main
     except KeyboardInterrupt:  # Ctrl-C while importing

@@ -1056,7 +1056,7 @@ def shoe_pixels_kernel(frame: NDArray[np.uint8], mask: NDArray[np.bool_], y0: in
     return su[:n], sv[:n]
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "arcp"})
 def proposal_cost_kernel(joints: NDArray[np.float32], inv_var: NDArray[np.float64], mu: NDArray[np.float64],
                          heading: NDArray[np.float32], centre: float, half_width: float, max_abs: float
                          ) -> NDArray[np.float64]:
@@ -1065,7 +1065,8 @@ def proposal_cost_kernel(joints: NDArray[np.float32], inv_var: NDArray[np.float6
     Reference: :func:`tracker_service.appearance.propose_leaves` with
     :meth:`tracker_service.appearance.HeadingWindow.mask` (``sum (x^2 - 2 x mu) / var`` over every
     coordinate; one pass over the joints instead of a matrix product over the joints and their
-    squares; ``fastmath`` lets the inner sum vectorise).
+    squares; re-association lets the inner sum vectorise; NaN and infinity keep their IEEE meaning, so
+    a NaN heading or centre is outside the window, never a hang).
 
     Parameters
     ----------
@@ -1093,12 +1094,11 @@ def proposal_cost_kernel(joints: NDArray[np.float32], inv_var: NDArray[np.float6
     two_pi = 2.0 * np.pi
     for i in range(nl):
         h = float(heading[i])
-        d = h - centre
-        while d > np.pi:
-            d -= two_pi
-        while d < -np.pi:
+        d = np.fmod(h - centre + np.pi, two_pi)  # the angle between them, in [-pi, pi)
+        if d < 0.0:
             d += two_pi
-        if abs(d) > half_width or abs(h) > max_abs:
+        d -= np.pi
+        if not (abs(d) <= half_width and abs(h) <= max_abs):  # NaN: outside
             out[i] = np.inf
             continue
         s = np.float32(0.0)

@@ -43,7 +43,7 @@ from ._kernels import proposal_cost_kernel
 from .camera import Camera
 
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
-           "Layer", "default_appearance_path", "forward", "joints_cost", "leaf_camera_joints",
+           "Layer", "default_appearance_path", "forward", "in_view", "joints_cost", "leaf_camera_joints",
            "load_appearance", "net_input", "person_crop", "predict_joints", "propose_leaves",
            "propose_leaves_in_window", "save_appearance"]
 
@@ -147,10 +147,26 @@ def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int
     side = CROP_MARGIN * max(y1 - y0, x1 - x0)
     k = size / side
     m = np.array([[k, 0.0, size / 2 - 0.5 * (x0 + x1) * k], [0.0, k, size / 2 - 0.5 * (y0 + y1) * k]])
+    # (warpAffine samples bilinearly whatever the flag says: INTER_AREA exists only in resize. The
+    # networks were trained on exactly this crop; changing it needs a retrained network.)
     crop = np.asarray(cv2.warpAffine(frame, m, (size, size), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_REPLICATE),
                       np.uint8)
     cm = np.asarray(cv2.warpAffine(mask.astype(np.uint8) * 255, m, (size, size), flags=cv2.INTER_AREA) > 127)
     return crop, cm
+
+
+def in_view(mask: NDArray[np.bool_], min_pixels: int = 200) -> bool:
+    """Whether the network may read this silhouette: at least ``min_pixels`` pixels and not cut by
+    the image border (the training views are chosen by the same test, so a cut person is an input
+    the network has never seen).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    min_pixels : int
+    """
+    return bool(mask.sum() >= min_pixels and not (mask[0].any() or mask[-1].any() or mask[:, 0].any()
+                                                    or mask[:, -1].any()))
 
 
 def net_input(crop: NDArray[np.uint8], crop_mask: NDArray[np.bool_]) -> NDArray[np.float32]:
@@ -223,12 +239,14 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     mu : (J, 3) float64
     var : (J, 3) float64
         The network's variance of each coordinate.
-    None when the mask is empty.
+    None when the mask is empty or the network's output is not finite.
     """
     c = person_crop(frame, mask, net.size)
     if c is None:
         return None
     out = forward(net, net_input(*c)).astype(np.float64)
+    if not np.isfinite(out).all():
+        return None
     n = N_JOINTS * 3
     mu = out[:n].reshape(N_JOINTS, 3)
     var = np.exp(np.clip(out[n: 2 * n], *LOG_VAR_RANGE)).reshape(N_JOINTS, 3)
@@ -321,6 +339,8 @@ def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joint
     allowed : (NL,) bool, optional
         Leaves that may be proposed (e.g. headings near the current one).
 
+    An infinite variance leaves that coordinate out.
+
     Returns
     -------
     (min(k, n_allowed),) int64
@@ -337,7 +357,8 @@ def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joint
 def propose_leaves_in_window(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
                              k: int, heading: NDArray[np.float32], window: HeadingWindow) -> NDArray[np.int64]:
     """:func:`propose_leaves` among the leaves whose heading is in ``window``, by one numba pass
-    over the joints (``_kernels.proposal_cost_kernel``; 2.2 -> 1 ms a frame for 47,105 leaves).
+    over the joints (``_kernels.proposal_cost_kernel``; with the heading window, 2.8 -> 1.5 ms a frame
+    for 47,105 leaves in the pipeline).
 
     Parameters
     ----------
@@ -395,7 +416,8 @@ def load_appearance(path: str | Path) -> AppearanceNet:
         with np.load(p, allow_pickle=False) as z:
             header = json.loads(str(z["header"]))
             arrays = {k: np.asarray(z[k]) for k in z.files if k != "header"}
-    except (OSError, ValueError, KeyError, EOFError, zlib.error, zipfile.BadZipFile) as e:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError, zlib.error, zipfile.BadZipFile) as e:
+        # (TypeError / AttributeError: a .npy array, not an archive, under this name)
         raise AppearanceError(f"cannot read {p} (truncated or corrupt: {type(e).__name__}: {e}); {hint}") from None
     if not isinstance(header, dict) or header.get("format") != APPEARANCE_FORMAT:
         raise AppearanceError(f"{p} is not an appearance network; {hint}")
@@ -410,15 +432,23 @@ def load_appearance(path: str | Path) -> AppearanceNet:
                     zlib.crc32(np.ascontiguousarray(b).tobytes()) != s["crc_b"]:
                 raise AppearanceError(f"{p} is corrupt (checksum mismatch in layer {i}); {hint}")
             if s["kind"] not in ("conv", "dense") or w.dtype != np.float32 or b.shape != (w.shape[0],) or \
-                    (s["kind"] == "conv" and w.shape[2:] != (3, 3)) or (s["kind"] == "dense" and w.ndim != 2):
-                raise AppearanceError(f"{p}: layer {i} has inconsistent shapes {w.shape} / {b.shape}; {hint}")
+                    (s["kind"] == "conv" and w.shape[2:] != (3, 3)) or (s["kind"] == "dense" and w.ndim != 2) or \
+                    not 1 <= int(s["stride"]) <= 4:
+                raise AppearanceError(f"{p}: layer {i} has inconsistent shapes {w.shape} / {b.shape} or stride "
+                                      f"{s['stride']}; {hint}")
+            if not (np.isfinite(w).all() and np.isfinite(b).all()):
+                raise AppearanceError(f"{p}: layer {i} holds non-finite weights (a diverged training); {hint}")
             layers.append(Layer(s["kind"], w, b, int(s["stride"]), bool(s["pool"]), bool(s["relu"])))
+        if not 8 <= int(header["size"]) <= 512:
+            raise AppearanceError(f"{p}: input size {header['size']} is out of range; {hint}")
         net = AppearanceNet(size=int(header["size"]), layers=tuple(layers), meta=dict(header.get("meta", {})))
         probe = forward(net, np.zeros((net.size, net.size, 4), np.float32))
     except AppearanceError:
         raise
-    except (KeyError, TypeError, ValueError, IndexError) as e:
+    except (KeyError, TypeError, ValueError, IndexError, ArithmeticError) as e:
         raise AppearanceError(f"inconsistent appearance network at {p} ({type(e).__name__}: {e}); {hint}") from None
     if probe.shape != (2 * N_JOINTS * 3,):
         raise AppearanceError(f"{p} outputs {probe.shape[0]} values, expected {2 * N_JOINTS * 3}; {hint}")
+    if not np.isfinite(probe).all():
+        raise AppearanceError(f"{p} gives non-finite outputs; {hint}")
     return net

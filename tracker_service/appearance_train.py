@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 
-from .appearance import AppearanceNet, Layer, person_crop
+from .appearance import AppearanceNet, Layer, in_view, person_crop
 
 __all__ = ["Samples", "TrainConfig", "export_layers", "render_samples", "render_take", "train_network"]
 
@@ -135,7 +135,7 @@ def render_take(path: str | Path, seed: int, every: int, size: int) -> Samples:
         for i in range(start, scene.n_frames, every):
             fr = scene.frame(i)
             sil = fr.truth.silhouette
-            if sil.sum() < 200 or sil[0].any() or sil[-1].any() or sil[:, 0].any() or sil[:, -1].any():
+            if not in_view(sil):
                 continue  # too small, or cut by the image border
             c = person_crop(fr.image, sil, size)
             if c is None:

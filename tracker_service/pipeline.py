@@ -297,6 +297,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     leaf_appearance_cost = None
     proposals = None
     ta = time.perf_counter()
+    # (also when the person is cut by the image border, which no training view shows: skipping those
+    # frames was measured worse on all three subjects, docs/TRACKER.md session 24)
     if config.appearance is not None and config.filter.appearance_weight > 0 and len(db.leaf_joints3d):
         seen = predict_joints(config.appearance, frame, mask)
         if seen is not None:
@@ -306,9 +308,11 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             def leaf_appearance_cost(leaves: NDArray[np.int64]) -> NDArray[np.float64]:
                 return joints_cost(mu, var, db.leaf_joints3d[leaves], coords)
 
-            if config.filter.appearance_proposals > 0:
-                proposals = propose_leaves_in_window(mu, var, db.leaf_joints3d, config.filter.appearance_proposals,
-                                                     db.leaf_heading, _heading_window(fstate, db, config.filter))
+            window = _heading_window(fstate, db, config.filter)
+            if config.filter.appearance_proposals > 0 and np.isfinite(window.centre):
+                scored = np.where(np.isin(np.arange(3), coords), var, np.inf)  # the coordinates the cost counts
+                proposals = propose_leaves_in_window(mu, scored, db.leaf_joints3d, config.filter.appearance_proposals,
+                                                     db.leaf_heading, window)
     ms["appearance"] = (time.perf_counter() - ta) * 1e3
     fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask), leaf_shoe_cost,
                        leaf_appearance_cost, proposals)

@@ -251,8 +251,9 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
     from .appearance import default_appearance_path
 
     out = Path(args.out) if args.out else default_appearance_path()
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    for name in ("jobs", "epochs", "takes"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
     meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs)
     val = ("validation RMS x / y / z " + " / ".join(f"{100 * meta[k]:.1f}" for k in ("val_rms_x", "val_rms_y",
                                                                                      "val_rms_z"))

@@ -322,8 +322,9 @@ def _leaf_cues(leaves: NDArray[np.int64], places: NDArray[np.float64], params: F
             out = params.shoe_weight * (c - c.min())
     if appearance_cost is not None and params.appearance_weight > 0:
         c = appearance_cost(leaves)
-        a = params.appearance_weight * (c - c.min())
-        out = a if out is None else out + a
+        if np.isfinite(c).all():  # (a non-finite cost would poison the posterior for good: skipped)
+            a = params.appearance_weight * (c - c.min())
+            out = a if out is None else out + a
     return out
 
 

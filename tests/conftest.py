@@ -53,13 +53,15 @@ def weak_appearance_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
     standing with the arms down, with a wide variance: the cue's whole path runs without the half
     hour of rendering and training a real network needs. Its layers: one convolution, then a
     dense layer that ignores it and answers its bias."""
+    from protocol import fk
     from protocol.skeleton import N_JOINTS, POSE_SIZE
-    from tracker_service.appearance import AppearanceNet, Layer, leaf_camera_joints, save_appearance
+    from tracker_service.appearance import AppearanceNet, Layer, camera_joints, save_appearance
     from tracker_service.body_models import body_model
     from tracker_service.camera import default_camera
 
     size = 16
-    mu = leaf_camera_joints(np.zeros((1, POSE_SIZE), np.float32), body_model("mMA").body, default_camera())[0]
+    body = body_model("mMA").body
+    mu = camera_joints(fk(np.zeros(POSE_SIZE), body), default_camera(), body.height)
     conv = Layer("conv", np.full((2, 4, 3, 3), 0.01, np.float32), np.zeros(2, np.float32), 2, True, True)
     bias = np.concatenate([mu.ravel(), np.full(N_JOINTS * 3, 0.0, np.float32)]).astype(np.float32)
     dense = Layer("dense", np.zeros((2 * N_JOINTS * 3, 2 * (size // 4) ** 2), np.float32), bias, 1, False, False)

@@ -16,9 +16,9 @@ from tracker_service.appearance import (
     AppearanceError,
     AppearanceNet,
     Layer,
+    camera_joints,
     forward,
     joints_cost,
-    leaf_camera_joints,
     load_appearance,
     net_input,
     person_crop,
@@ -98,13 +98,13 @@ def test_person_crop_centres_and_scales_the_silhouette() -> None:
     assert np.all(x[~cm, :3] == 0) and np.all(x[..., 3] == cm)
 
 
-def test_leaf_camera_joints_are_pelvis_relative_in_camera_axes_over_height() -> None:
+def test_camera_joints_are_pelvis_relative_in_camera_axes_over_height() -> None:
     body = body_model("mMA").body
     cam = default_camera()
     poses = np.zeros((3, 3 + 3 * 19), np.float32)
     poses[:, :3] = [[0.5, 0.9, -1.0], [0.0, 1.0, 0.0], [2.0, 0.8, 1.0]]  # the root's place does not matter
     poses[1, 4] = 0.7  # turned about the vertical
-    out = leaf_camera_joints(poses, body, cam)
+    out = camera_joints(fk(poses, body), cam, body.height)
     assert out.shape == (3, N_JOINTS, 3) and out.dtype == np.float32
     assert np.allclose(out[:, 0], 0)
     assert np.allclose(out[0], out[2], atol=1e-6)

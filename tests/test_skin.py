@@ -69,7 +69,7 @@ def test_leaf_hand_points_fall_on_the_rendered_hands() -> None:
     poses = rest_pose(3)
     poses[1, 3:6] = (0.0, 0.8, 0.0)  # turned
     poses[2, 3:6] = (0.3, 0.0, 0.0)  # leaning
-    pts = hand_points(leaf_joint_points(poses, body, cam))
+    pts = hand_points(leaf_joint_points(fk(poses, body), cam))
     assert pts.shape == (3, 2, 2) and pts.dtype == np.float32
     joints = fk(poses, body)
     for k in range(3):
@@ -168,7 +168,7 @@ def test_skin_cost_kernel_matches_the_numpy_references() -> None:
     cam = default_camera()
     poses = rest_pose(5)
     poses[:, 3:] += rng.normal(0, 0.4, (5, poses.shape[1] - 3))
-    pts = leaf_joint_points(poses, body, cam)
+    pts = leaf_joint_points(fk(poses, body), cam)
     pts[4, 3] = np.nan  # a joint behind the camera
     img = np.zeros((cam.height, cam.width, 3), np.uint8)
     img[rng.integers(0, cam.height, 40), rng.integers(0, cam.width, 40)] = (131, 163, 212)

@@ -17,7 +17,7 @@ classifier was trained on synthetic renders of motion capture the same way):
    variance per coordinate (the network was trained with a Gaussian negative log likelihood);
 3. :func:`joints_cost` scores template leaves: ``0.5 sum_j sum_c (mu_jc - x_jc)^2 / var_jc`` over
    the chosen coordinates, where ``x`` are the leaf's joints in the same frame
-   (:func:`leaf_camera_joints`, computed once when the database is loaded).
+   (:func:`camera_joints` of the leaves' joints, computed once when the database is loaded).
 
 The cost joins the filter's leaf likelihood with a weight (``FilterParams.appearance_weight``);
 measured in docs/TRACKER.md (session 24).
@@ -36,14 +36,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
-from protocol.skeleton import N_JOINTS, Body
+from protocol.skeleton import N_JOINTS
 
 from ._kernels import proposal_cost_kernel
 from .camera import Camera
 
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
-           "Layer", "default_appearance_path", "forward", "in_view", "joints_cost", "leaf_camera_joints",
+           "Layer", "camera_joints", "default_appearance_path", "forward", "in_view", "joints_cost",
            "load_appearance", "net_input", "person_crop", "predict_joints", "propose_leaves",
            "propose_leaves_in_window", "save_appearance"]
 
@@ -253,27 +252,24 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     return mu, var
 
 
-def leaf_camera_joints(leaf_poses: NDArray[Any], body: Body, camera: Camera, batch: int = 8192) -> NDArray[np.float32]:
-    """Every leaf's joints relative to its pelvis, in the camera's axes, over the body's height.
+def camera_joints(joints: NDArray[np.floating[Any]], camera: Camera, height: float) -> NDArray[np.float32]:
+    """Joints relative to the pelvis, in the camera's axes, over the person's height: what the
+    network reads (its training targets) and what it scores the leaves by.
 
     Parameters
     ----------
-    leaf_poses : (NL, P) float
-    body : Body
+    joints : (..., J, 3) float
+        World joint positions (metres; joint 0 the pelvis), e.g. the leaves' forward kinematics.
     camera : Camera
+    height : float
+        The person's (or the body model's) height, metres.
 
     Returns
     -------
-    (NL, J, 3) float32
+    (..., J, 3) float32
     """
-    r = camera.pose[:3, :3]
-    out = np.empty((len(leaf_poses), N_JOINTS, 3), np.float32)
-    for s in range(0, len(leaf_poses), batch):
-        p = np.array(leaf_poses[s: s + batch], np.float64)
-        p[:, :3] = 0.0
-        j = fk(p, body)
-        out[s: s + batch] = ((j - j[:, :1]) @ r) / body.height
-    return out
+    j = np.asarray(joints, np.float64)
+    return np.asarray(((j - j[..., :1, :]) @ camera.pose[:3, :3]) / height, np.float32)
 
 
 def joints_cost(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: NDArray[np.float32],
@@ -285,7 +281,7 @@ def joints_cost(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joints: 
     mu, var : (J, 3) float64
         :func:`predict_joints`.
     leaf_joints : (n, J, 3) float32
-        :func:`leaf_camera_joints` of the leaves to score.
+        :func:`camera_joints` of the leaves to score.
     coords : tuple of int
         Coordinates that count (0 = x right, 1 = y up, 2 = z towards the camera).
 
@@ -334,7 +330,7 @@ def propose_leaves(mu: NDArray[np.float64], var: NDArray[np.float64], leaf_joint
     ----------
     mu, var : (J, 3) float64
     leaf_joints : (NL, J, 3) float32
-        :func:`leaf_camera_joints` of every leaf.
+        :func:`camera_joints` of every leaf.
     k : int
     allowed : (NL,) bool, optional
         Leaves that may be proposed (e.g. headings near the current one).

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 
-from .appearance import AppearanceNet, Layer, in_view, person_crop
+from .appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
 
 __all__ = ["Samples", "TrainConfig", "export_layers", "render_samples", "render_take", "train_network"]
 
@@ -140,10 +140,9 @@ def render_take(path: str | Path, seed: int, every: int, size: int) -> Samples:
             c = person_crop(fr.image, sil, size)
             if c is None:
                 continue
-            j = fr.truth.joints
             crops.append(c[0])
             masks.append(c[1])
-            joints.append(((j - j[0]) @ fr.truth.camera.pose[:3, :3]) / height)
+            joints.append(camera_joints(fr.truth.joints, fr.truth.camera, height))
     if not crops:
         return Samples(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool),
                        np.zeros((0, N_JOINTS, 3), np.float32))

@@ -26,13 +26,14 @@ from protocol.motion import Motion, load_motion
 from protocol.rotations import matrix_to_quat, matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX, N_PARTS, PARTS, POSE_SIZE, ROT_JOINTS, Body
 
-from .appearance import leaf_camera_joints
+from .appearance import camera_joints
 from .camera import Camera, default_camera
 from .features import LEVEL_SIZES
 from .placement import placement_columns, placement_rows
 from .pose_pruning import prune_poses
 from .silhouette_distance import RunSet
 from .silhouette_render import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
+from .skin import leaf_joint_points
 from .template_tree import PackedMaskDistance, build_tree, pack_masks
 from .tree_filter import FilterDB
 
@@ -299,8 +300,9 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
     stats["transitions"] = len(uniq)
     # leaf data
     leaf_poses = tpl[leaf_tpl]
+    leaf_joints = joints[leaf_tpl]  # the leaves' joints, already posed
     vis = np.zeros((nl, N_PARTS), np.float32)
-    for k, j in enumerate(joints[leaf_tpl]):
+    for k, j in enumerate(leaf_joints):
         _, counts, areas = render_labels_with_areas(j, radii, cam)
         vis[k] = counts / np.maximum(areas, 1)
     nbr_idx, nbr_dpart = _neighbours(leaf_poses, config.neighbours)
@@ -318,8 +320,8 @@ def build_filter_db(motions: Sequence[Motion], body: Body, camera: Camera | None
         nbr_idx=nbr_idx, nbr_dpart=nbr_dpart, sigma_part=_sigma_part(poses, succ),
         level_column=level_column, ref_column=ref_column,
         level_bottom=level_bottom, level_top=level_top, ref_bottom=ref_bottom,
-        leaf_points=cam.project(joints[leaf_tpl]).astype(np.float32),  # the leaves' joints, already posed
-        leaf_joints3d=leaf_camera_joints(leaf_poses, body, cam),
+        leaf_points=leaf_joint_points(leaf_joints, cam),
+        leaf_joints3d=camera_joints(leaf_joints, cam, body.height),
     )
     stats["total_s"] = time.perf_counter() - t0
     log.info("database: %s", stats)

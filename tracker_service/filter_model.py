@@ -62,10 +62,10 @@ class FilterDB:
         The row a standing template's lowest row lies on (the observed feet line's reference).
     leaf_points : (NL, J, 2) float32, optional
         Image position of every joint of each leaf's template at the reference placement
-        (:func:`tracker_service.skin.leaf_joint_points`); empty: no skin cue.
+        (:func:`tracker_service.skin.leaf_joint_points` of the leaves' joints); empty: no skin cue.
     leaf_joints3d : (NL, J, 3) float32, optional
         Every leaf's joints relative to its pelvis in the camera's axes, over the body's height
-        (:func:`tracker_service.appearance.leaf_camera_joints`); empty: no appearance cue.
+        (:func:`tracker_service.appearance.camera_joints` of the leaves' joints); empty: no appearance cue.
     """
 
     tree: TemplateTree

@@ -41,7 +41,7 @@ from .placement import (
 from .shoes import ShoeModel, ShoeParams, band_pixels, feet_cost, foot_points, learn_shoes, reweight_legs, shoe_pixels
 from .skin import SkinModel, observe_skin
 from .smoothing import OneEuroParams, SmoothState, smooth_pose
-from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step
+from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step, support_heading
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
 
@@ -208,8 +208,7 @@ def _heading_window(fstate: FilterState, db: FilterDB, params: FilterParams) -> 
     current one (its support's circular mean; facing the camera when it has none) and within
     ``params.max_heading``."""
     if len(fstate.leaves):
-        cur = db.leaf_heading[fstate.leaves].astype(np.float64)
-        centre, half = float(np.arctan2(fstate.weights @ np.sin(cur), fstate.weights @ np.cos(cur))), params.max_turn
+        centre, half = support_heading(fstate, db), params.max_turn
     else:
         centre, half = 0.0, np.pi / 2
     return HeadingWindow(centre, half, np.inf if params.max_heading is None else params.max_heading)
@@ -308,11 +307,10 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             def leaf_appearance_cost(leaves: NDArray[np.int64]) -> NDArray[np.float64]:
                 return joints_cost(mu, var, db.leaf_joints3d[leaves], coords)
 
-            window = _heading_window(fstate, db, config.filter)
-            if config.filter.appearance_proposals > 0 and np.isfinite(window.centre):
+            if config.filter.appearance_proposals > 0:
                 scored = np.where(np.isin(np.arange(3), coords), var, np.inf)  # the coordinates the cost counts
                 proposals = propose_leaves_in_window(mu, scored, db.leaf_joints3d, config.filter.appearance_proposals,
-                                                     db.leaf_heading, window)
+                                                     db.leaf_heading, _heading_window(fstate, db, config.filter))
     ms["appearance"] = (time.perf_counter() - ta) * 1e3
     fstate, est = step(fstate, db, feats, config.filter, obs, skin, silhouette_rows(mask), leaf_shoe_cost,
                        leaf_appearance_cost, proposals)

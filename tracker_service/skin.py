@@ -29,8 +29,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol import fk
-from protocol.skeleton import JOINT_INDEX, N_JOINTS, PARTS, Body
+from protocol.skeleton import JOINT_INDEX, N_JOINTS, PARTS
 
 from ._kernels import skin_cost_kernel
 from .camera import Camera
@@ -189,30 +188,23 @@ def observe_skin(image: NDArray[np.uint8], silhouette: NDArray[np.bool_], model:
     return SkinObservation(mask, samples, dist, float(mask.sum()) / max(n_fg, 1))
 
 
-def leaf_joint_points(leaf_poses: NDArray[np.floating], body: Body, camera: Camera, chunk: int = 8192
-                      ) -> NDArray[np.float32]:
+def leaf_joint_points(leaf_joints: NDArray[np.floating], camera: Camera) -> NDArray[np.float32]:
     """Image position of every joint of each leaf template at the reference placement.
 
     Parameters
     ----------
-    leaf_poses : (NL, P) float
-        Poses as rendered into the database (root at the reference spot).
-    body : Body
-        The database's body model.
+    leaf_joints : (NL, J, 3) float
+        The leaves' joints: forward kinematics of their poses as rendered into the database (root
+        at the reference spot) with the database's body model.
     camera : Camera
         The database's full-resolution camera.
-    chunk : int
-        Poses per forward-kinematics batch.
 
     Returns
     -------
     (NL, J, 2) float32
         ``(u, v)`` of every joint.
     """
-    out = np.empty((len(leaf_poses), len(JOINT_INDEX), 2), np.float32)
-    for i in range(0, len(leaf_poses), chunk):
-        out[i: i + chunk] = camera.project(fk(np.asarray(leaf_poses[i: i + chunk], np.float64), body))
-    return out
+    return np.asarray(camera.project(np.asarray(leaf_joints, np.float64)), np.float32)
 
 
 def hand_points(joint_points: NDArray[np.float32]) -> NDArray[np.float32]:

@@ -17,9 +17,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from protocol.kinematics import fk
 from protocol.skeleton import Body
 
-from .appearance import leaf_camera_joints
+from .appearance import camera_joints
 from .camera import Camera
 from .placement import placement_columns, placement_rows
 from .silhouette_distance import RunSet
@@ -185,14 +186,15 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
         level_scale = tuple(float(v) for v in man["level_scale"])
         level_column, ref_column = placement_columns(runs, level_scale, cam)
         level_bottom, level_top, ref_bottom = placement_rows(runs, level_scale, cam)
+        leaf_joints = fk(np.asarray(arrays["leaf_poses"], np.float64), body)  # once, for the skin and appearance cues
         db = FilterDB(tree=tree, level_runs=runs, level_scale=level_scale,
                       center=(float(man["center"][0]), float(man["center"][1])),
                       **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
                                                 "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")},
                       level_column=level_column, ref_column=ref_column,
                       level_bottom=level_bottom, level_top=level_top, ref_bottom=ref_bottom,
-                      leaf_points=leaf_joint_points(arrays["leaf_poses"], body, cam),
-                      leaf_joints3d=leaf_camera_joints(arrays["leaf_poses"], body, cam))
+                      leaf_points=leaf_joint_points(leaf_joints, cam),
+                      leaf_joints3d=camera_joints(leaf_joints, cam, body.height))
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:

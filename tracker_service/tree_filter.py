@@ -46,13 +46,21 @@ from .filter_reference import heading_mass_reference
 from .silhouette_distance import evaluate_template_grid
 from .skin import HAND_PARTS, SkinObservation, skin_cost
 
-__all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "mean_pose", "step", "tempered"]
+__all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "mean_pose", "step",
+           "support_heading", "tempered"]
 
 
 def initial_state(placement: NDArray[np.float64] | None = None, reinits: int = 0) -> FilterState:
     """The state before the first frame (or after a loss): no leaf information."""
     p = np.array([0.0, 0.0, 1.0]) if placement is None else np.asarray(placement, np.float64)
     return FilterState(np.zeros(0, np.int64), np.zeros(0), p, reinits=reinits)
+
+
+def support_heading(state: FilterState, db: FilterDB) -> float:
+    """The heading of the filter's support: its leaves' headings' circular mean under their weights
+    (radians; ``state.leaves`` must not be empty)."""
+    cur = db.leaf_heading[state.leaves].astype(np.float64)
+    return float(np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur)))
 
 
 def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> NDArray[np.float64]:
@@ -82,11 +90,10 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
                       float(params.hist_weight), prior)
     # re-acquisition mass, restricted to headings near the current one (numba; reference:
     # filter_reference.heading_mass_reference)
-    cur = db.leaf_heading[state.leaves].astype(np.float64)
-    mean_heading = np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur))
+    mean_heading = support_heading(state, db)
     if not heading_mass_kernel(prior, np.ascontiguousarray(db.leaf_heading, np.float32), allowed,
-                               float(mean_heading), float(params.max_turn), float(params.uniform_mass)):
-        prior = heading_mass_reference(prior, db.leaf_heading, allowed, float(mean_heading), params.max_turn,
+                               mean_heading, float(params.max_turn), float(params.uniform_mass)):
+        prior = heading_mass_reference(prior, db.leaf_heading, allowed, mean_heading, params.max_turn,
                                        params.uniform_mass)
     if prior.sum() <= 0:
         prior = allowed.astype(np.float64)

@@ -154,6 +154,8 @@ def main() -> int:
         "xor_given_measurements": TrackerConfig(distance="xor"),
         # no appearance cue (the tracker of sessions 16-23)
         "xor_no_appearance": TrackerConfig(distance="xor"),
+        # the appearance cue in the filter only: the published pose not refined toward its joints (session 24)
+        "xor_no_refine": TrackerConfig(distance="xor", refine=None),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not
     configs = {k: (c if k in ("xor_silhouette_only", "xor_no_appearance") else replace(c, appearance=net))

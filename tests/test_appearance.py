@@ -4,6 +4,7 @@ file's checks, its training on a toy problem and on rendered views, and its wiri
 from __future__ import annotations
 
 import zlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -424,3 +425,75 @@ def test_proposed_leaves_are_evaluated_beside_the_trees_candidates(small_db) -> 
                      appearance_cost=lambda lv: joints_cost(mu, np.full((N_JOINTS, 3), 1e-4), db.leaf_joints3d[lv]),
                      proposals=np.array([near]))
     assert est2.leaf == near
+
+
+def test_the_published_pose_is_refined_towards_the_reading(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    """With the cue, the published joints move toward what the network reads (ELMO's local
+    refinement, ``pose_refinement.py``); ``refine=None`` publishes the filter's pose, and the filter
+    itself (its posterior) is the same either way."""
+    from protocol.motion import ground
+    from tracker_service.pipeline import TrackerConfig, new_state, process_frame
+    from tracker_service.silhouette_render import render_silhouette
+    from tracker_service.template_db import load_db
+
+    _, _, motions, _, path = small_db
+    loaded = load_db(path)
+    db, cam = loaded.db, loaded.camera
+    truth = fk(ground(motions[0].poses, loaded.body), loaded.body)
+    room = np.full((cam.height, cam.width, 3), (170, 175, 160), np.float32)
+    noise = [rng.normal(0, 2.0, room.shape) for _ in range(26)]
+
+    def frame(i: int, mask: np.ndarray | None) -> np.ndarray:
+        img = room.copy()
+        if mask is not None:
+            img[mask] = (40, 60, 200)
+        return np.clip(img + noise[i], 0, 255).astype(np.uint8)
+
+    masks = [render_silhouette(truth[f], loaded.body.capsule_radii, cam) for f in range(0, 40, 2)]
+    frames = [frame(i, None) for i in range(6)] + [frame(6 + k, m) for k, m in enumerate(masks)]
+    # the network reads the leaf with the left hand farthest towards the camera
+    hand = JOINT_INDEX["l_hand_tip"]
+    reading = db.leaf_joints3d[int(np.argmax(db.leaf_joints3d[:, hand, 2]))].astype(np.float64)
+    net = constant_net(reading, log_var=-7.0)
+
+    def run(cfg: TrackerConfig) -> tuple[list[float], list[np.ndarray], list[float]]:
+        st = new_state(loaded.body)
+        dist, weights, hand_z = [], [], []
+        for i, img in enumerate(frames):
+            st, res = process_frame(st, img, db, loaded.body, cam, cfg, i / 30)
+            if res.phase == "tracking" and res.joints is not None:
+                seen = camera_joints(res.joints, cam, st.body.height).astype(np.float64)
+                dist.append(float(np.linalg.norm(seen - reading, axis=1).mean()))
+                weights.append(st.filter.weights.copy())
+                hand_z.append(float(abs(seen[hand, 2] - reading[hand, 2])))
+        assert len(dist) >= 10
+        return dist, weights, hand_z
+
+    base = TrackerConfig(background_frames=6, init_frames=3, appearance=net, smoothing=None)
+    d_off, w_off, z_off = run(replace(base, refine=None))
+    d_on, w_on, z_on = run(base)
+    assert all(np.array_equal(a, b) for a, b in zip(w_off, w_on, strict=True))
+    assert np.mean(d_on) < 0.3 * np.mean(d_off), (np.mean(d_on), np.mean(d_off))
+    # the hand's depth, which the silhouette cannot see
+    assert np.mean(z_on) < 0.5 * np.mean(z_off), (np.mean(z_on), np.mean(z_off))
+
+
+def test_mirrored_reading_averages_both_views(rng: np.random.Generator) -> None:
+    """``mirror=True``: the flipped crop's reading, mapped back (left and right swapped, x negated),
+    averaged with the direct one; the variance widened by their disagreement. A network that ignores
+    its input disagrees with its own mirror image exactly where the pose is asymmetric."""
+    mu = rng.normal(0, 0.2, (N_JOINTS, 3))
+    net = constant_net(mu, log_var=-6.0)
+    frame = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
+    mask = np.zeros((120, 160), bool)
+    mask[20:100, 60:100] = True
+    direct = predict_joints(net, frame, mask)
+    both = predict_joints(net, frame, mask, mirror=True)
+    assert direct is not None and both is not None
+    back = mu[list(MIRROR_JOINTS)] * np.array([-1.0, 1.0, 1.0])
+    assert np.allclose(direct[0], mu, atol=1e-6)
+    assert np.allclose(both[0], 0.5 * (mu + back), atol=1e-6)
+    assert np.allclose(both[1], np.exp(-6.0) + np.square(0.5 * (mu - back)), rtol=1e-5, atol=1e-9)
+    sym = 0.5 * (mu + back)  # a symmetric reading is its own mirror image: nothing changes
+    s = predict_joints(constant_net(sym, log_var=-6.0), frame, mask, mirror=True)
+    assert s is not None and np.allclose(s[0], sym, atol=1e-6) and np.allclose(s[1], np.exp(-6.0), rtol=1e-5)

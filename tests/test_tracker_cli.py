@@ -30,7 +30,8 @@ def ns(**kw: object) -> argparse.Namespace:
     """The tracker options of ``run`` / ``eval`` with their defaults, overridden by ``kw`` (no
     appearance network unless given: the tests do not depend on a trained one)."""
     base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
-            "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off"}
+            "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off",
+            "no_refine": False}
     return argparse.Namespace(**(base | kw))
 
 
@@ -47,6 +48,7 @@ def test_tracker_options_build_the_config() -> None:
     assert cfg.filter.max_heading == pytest.approx(math.radians(35.0))
     assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)
     assert cfg.shoes is not None and _config(ns(no_shoes=True)).shoes is None
+    assert cfg.refine is not None and _config(ns(no_refine=True)).refine is None
     for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
         with pytest.raises(ValueError):
             _config(ns(**bad))

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.skeleton import N_JOINTS
+from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 
 from ._kernels import proposal_cost_kernel
 from .camera import Camera
@@ -223,7 +223,7 @@ def forward(net: AppearanceNet, x: NDArray[np.float32]) -> NDArray[np.float32]:
     return h
 
 
-def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[np.bool_]
+def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[np.bool_], mirror: bool = False
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """The joints' positions relative to the pelvis, camera axes, in units of the person's height.
 
@@ -232,6 +232,10 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     net : AppearanceNet
     frame : (H, W, 3) uint8
     mask : (H, W) bool
+    mirror : bool
+        Also read the crop flipped left-right (the network was trained on mirrored views too: left
+        and right joints swapped, ``x`` negated) and return the mean of both readings, the variance
+        widened by their disagreement; twice the cost.
 
     Returns
     -------
@@ -243,13 +247,26 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     c = person_crop(frame, mask, net.size)
     if c is None:
         return None
-    out = forward(net, net_input(*c)).astype(np.float64)
-    if not np.isfinite(out).all():
+    x = net_input(*c)
+    read = _read(forward(net, x))
+    if read is None or not mirror:
+        return read
+    flipped = _read(forward(net, np.ascontiguousarray(x[:, ::-1])))
+    if flipped is None:
+        return None
+    idx = np.asarray(MIRROR_JOINTS)
+    mu2, var2 = flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]
+    mu = 0.5 * (read[0] + mu2)
+    return mu, 0.5 * (read[1] + var2) + np.square(0.5 * (read[0] - mu2))
+
+
+def _read(out: NDArray[np.float32]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The network's raw output as joints and variances; None when it is not finite."""
+    o = out.astype(np.float64)
+    if not np.isfinite(o).all():
         return None
     n = N_JOINTS * 3
-    mu = out[:n].reshape(N_JOINTS, 3)
-    var = np.exp(np.clip(out[n: 2 * n], *LOG_VAR_RANGE)).reshape(N_JOINTS, 3)
-    return mu, var
+    return o[:n].reshape(N_JOINTS, 3), np.exp(np.clip(o[n: 2 * n], *LOG_VAR_RANGE)).reshape(N_JOINTS, 3)
 
 
 def camera_joints(joints: NDArray[np.floating[Any]], camera: Camera, height: float) -> NDArray[np.float32]:

@@ -38,6 +38,7 @@ from .placement import (
     scaled_placement,
     silhouette_rows,
 )
+from .pose_refinement import RefineParams, refine_pose
 from .shoes import ShoeModel, ShoeParams, band_pixels, feet_cost, foot_points, learn_shoes, reweight_legs, shoe_pixels
 from .skin import SkinModel, observe_skin
 from .smoothing import OneEuroParams, SmoothState, smooth_pose
@@ -94,6 +95,13 @@ class TrackerConfig:
         The appearance cue's network (:mod:`tracker_service.appearance`): the joints' depth read from
         the person's colour image weighs the leaves in the filter (``FilterParams.appearance_weight``);
         None: off.
+    appearance_mirror : bool
+        Read the person's crop flipped left-right too and average both readings
+        (:func:`tracker_service.appearance.predict_joints`): twice the network's cost.
+    refine : RefineParams or None
+        With the appearance cue: the published pose's joints are turned toward the network's
+        reading, fused with the filter's pose by their variances (:mod:`tracker_service.pose_refinement`,
+        ELMO's local refinement); None: the filter's pose as it is.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -118,6 +126,8 @@ class TrackerConfig:
     skin: SkinModel | None = field(default_factory=SkinModel)
     shoes: ShoeParams | None = field(default_factory=ShoeParams)
     appearance: AppearanceNet | None = None
+    appearance_mirror: bool = False
+    refine: RefineParams | None = field(default_factory=RefineParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
 
@@ -295,11 +305,12 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
 
     leaf_appearance_cost = None
     proposals = None
+    seen = None
     ta = time.perf_counter()
     # (also when the person is cut by the image border, which no training view shows: skipping those
     # frames was measured worse on all three subjects, docs/TRACKER.md session 24)
     if config.appearance is not None and config.filter.appearance_weight > 0 and len(db.leaf_joints3d):
-        seen = predict_joints(config.appearance, frame, mask)
+        seen = predict_joints(config.appearance, frame, mask, config.appearance_mirror)
         if seen is not None:
             mu, var = seen
             coords = config.filter.appearance_coords
@@ -359,6 +370,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         if cost is not None:
             pose = reweight_legs(pose, db.leaf_poses[est.support_leaves].astype(np.float64), est.support_weights,
                                  cost, config.filter.mean_temperature, config.shoes)
+    if seen is not None and config.refine is not None:  # ELMO's local refinement (pose_refinement.py)
+        pose = refine_pose(pose, body, camera.pose[:3, :3], seen[0], seen[1], body.height, config.refine)
     place = est.placement.copy()
     if config.depth_from_feet:  # the feet line measures depth better than the template fit's scale
         s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)

@@ -115,6 +115,9 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
         p.add_argument("--appearance", metavar="PATH|off",
                        help="the appearance cue's network (default: out/appearance/net.npz when it exists; "
                             "mocap-tracker train-appearance makes it, once); off: no cue")
+        p.add_argument("--no-refine", action="store_true",
+                       help="with the appearance cue: publish the filter's pose as it is, not refined toward the "
+                            "joints the network reads")
         p.add_argument("--pose", choices=("mean", "map"), default="mean",
                        help="publish the posterior-mean pose (default: hedges between the modes of an "
                             "ambiguous silhouette) or the MAP leaf's pose")
@@ -360,6 +363,8 @@ def _config(args: argparse.Namespace) -> Any:
         cfg = replace(cfg, smoothing=None)
     if args.pose == "map":
         cfg = replace(cfg, use_mean_pose=False)
+    if getattr(args, "no_refine", False):
+        cfg = replace(cfg, refine=None)
     net = ensure_appearance(getattr(args, "appearance", None), train_if_missing=False)
     if net is not None:
         cfg = replace(cfg, appearance=net)

@@ -176,51 +176,54 @@ def net_input(crop: NDArray[np.uint8], crop_mask: NDArray[np.bool_]) -> NDArray[
 
 
 def _conv(x: NDArray[np.float32], layer: Layer) -> NDArray[np.float32]:
-    """3 x 3 convolution, padding 1, of ``x`` (H, W, C): the nine shifted copies side by side
-    (im2col) and one matrix product."""
-    h, w, c = x.shape
+    """3 x 3 convolution, padding 1, of ``x`` (N, H, W, C): the nine shifted copies side by side
+    (im2col) and one matrix product for the whole batch."""
+    n, h, w, c = x.shape
     s = layer.stride
     ho, wo = (h - 1) // s + 1, (w - 1) // s + 1
-    xp = np.zeros((h + 2, w + 2, c), np.float32)
-    xp[1:-1, 1:-1] = x
-    cols = np.empty((ho, wo, 9 * c), np.float32)
+    xp = np.zeros((n, h + 2, w + 2, c), np.float32)
+    xp[:, 1:-1, 1:-1] = x
+    cols = np.empty((n, ho, wo, 9 * c), np.float32)
     for k in range(9):
         dy, dx = divmod(k, 3)
-        cols[:, :, k * c: (k + 1) * c] = xp[dy: dy + s * (ho - 1) + 1: s, dx: dx + s * (wo - 1) + 1: s]
-    y = cols.reshape(ho * wo, 9 * c) @ layer.matrix
+        cols[..., k * c: (k + 1) * c] = xp[:, dy: dy + s * (ho - 1) + 1: s, dx: dx + s * (wo - 1) + 1: s]
+    y = cols.reshape(n * ho * wo, 9 * c) @ layer.matrix
     y += layer.bias
-    return y.reshape(ho, wo, -1)
+    return y.reshape(n, ho, wo, -1)
 
 
 def forward(net: AppearanceNet, x: NDArray[np.float32]) -> NDArray[np.float32]:
-    """The network's raw output for one input.
+    """The network's raw output for one input or a batch.
 
     Parameters
     ----------
     net : AppearanceNet
-    x : (S, S, 4) float32
+    x : (S, S, 4) or (N, S, S, 4) float32
         :func:`net_input`.
 
     Returns
     -------
-    (n_outputs,) float32
+    (n_outputs,) or (N, n_outputs) float32
     """
     h: NDArray[np.float32] = np.asarray(x, np.float32)
+    single = h.ndim == 3
+    if single:
+        h = h[None]
     for layer in net.layers:
         if layer.kind == "conv":
             h = _conv(h, layer)
             if layer.relu:
                 np.maximum(h, 0.0, out=h)
             if layer.pool:
-                a, b, c = h.shape
-                h = h[: a // 2 * 2, : b // 2 * 2].reshape(a // 2, 2, b // 2, 2, c).max(axis=(1, 3))
+                n, a, b, c = h.shape
+                h = h[:, : a // 2 * 2, : b // 2 * 2].reshape(n, a // 2, 2, b // 2, 2, c).max(axis=(2, 4))
         else:
-            if h.ndim == 3:  # flatten in the training framework's (C, H, W) order
-                h = np.ascontiguousarray(h.transpose(2, 0, 1)).reshape(-1)
+            if h.ndim == 4:  # flatten in the training framework's (C, H, W) order
+                h = np.ascontiguousarray(h.transpose(0, 3, 1, 2)).reshape(h.shape[0], -1)
             h = h @ layer.matrix + layer.bias
             if layer.relu:
                 np.maximum(h, 0.0, out=h)
-    return h
+    return h[0] if single else h
 
 
 def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[np.bool_], mirror: bool = False
@@ -248,11 +251,11 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     if c is None:
         return None
     x = net_input(*c)
-    read = _read(forward(net, x))
-    if read is None or not mirror:
-        return read
-    flipped = _read(forward(net, np.ascontiguousarray(x[:, ::-1])))
-    if flipped is None:
+    if not mirror:
+        return _read(forward(net, x))
+    out = forward(net, np.stack([x, x[:, ::-1]]))  # one batch: both views in each layer's product
+    read, flipped = _read(out[0]), _read(out[1])
+    if read is None or flipped is None:
         return None
     idx = np.asarray(MIRROR_JOINTS)
     mu2, var2 = flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]

@@ -158,6 +158,8 @@ def main() -> int:
         "xor_no_refine": TrackerConfig(distance="xor", refine=None),
         # the network reads the crop once, not also mirrored (session 25's first run)
         "xor_no_mirror": TrackerConfig(distance="xor", appearance_mirror=False),
+        # the selected model's bone proportions kept (before session 25's proportions from the cue)
+        "xor_no_proportions": TrackerConfig(distance="xor", proportions=None),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not
     configs = {k: (c if k in ("xor_silhouette_only", "xor_no_appearance") else replace(c, appearance=net))

@@ -31,7 +31,7 @@ def ns(**kw: object) -> argparse.Namespace:
     appearance network unless given: the tests do not depend on a trained one)."""
     base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
             "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off",
-            "no_refine": False}
+            "no_refine": False, "no_proportions": False}
     return argparse.Namespace(**(base | kw))
 
 
@@ -49,6 +49,7 @@ def test_tracker_options_build_the_config() -> None:
     assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)
     assert cfg.shoes is not None and _config(ns(no_shoes=True)).shoes is None
     assert cfg.refine is not None and _config(ns(no_refine=True)).refine is None
+    assert cfg.proportions is not None and _config(ns(no_proportions=True)).proportions is None
     for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
         with pytest.raises(ValueError):
             _config(ns(**bad))

@@ -15,6 +15,7 @@ Phases (``TrackerState.phase``):
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -39,12 +40,15 @@ from .placement import (
     silhouette_rows,
 )
 from .pose_refinement import RefineParams, refine_pose
+from .proportions import ProportionParams, adapt_body, bone_lengths_read, describe, proportion_ratios
 from .shoes import ShoeModel, ShoeParams, band_pixels, feet_cost, foot_points, learn_shoes, reweight_legs, shoe_pixels
 from .skin import SkinModel, observe_skin
 from .smoothing import OneEuroParams, SmoothState, smooth_pose
 from .tree_filter import FilterDB, FilterParams, FilterState, initial_state, step, support_heading
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
+
+log = logging.getLogger(__name__)
 
 Phase = Literal["learning", "waiting", "initialising", "tracking"]
 
@@ -102,6 +106,11 @@ class TrackerConfig:
         With the appearance cue: the published pose's joints are turned toward the network's
         reading, fused with the filter's pose by their variances (:mod:`tracker_service.pose_refinement`,
         ELMO's local refinement); None: the filter's pose as it is.
+    proportions : ProportionParams or None
+        With the appearance cue: after the first frames of tracking, the published skeleton's torso,
+        arm and leg bones take the lengths the network reads (:mod:`tracker_service.proportions`;
+        once per session, ``body_changed`` set; not with a given ``body``); None: the selected model's
+        proportions.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -128,6 +137,7 @@ class TrackerConfig:
     appearance: AppearanceNet | None = None
     appearance_mirror: bool = True
     refine: RefineParams | None = field(default_factory=RefineParams)
+    proportions: ProportionParams | None = field(default_factory=ProportionParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
 
@@ -154,6 +164,8 @@ class TrackerState:
     smooth: SmoothState | None = None
     shoe_samples: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
     shoes: ShoeModel | None = None
+    bone_readings: tuple[NDArray[np.float64], ...] = ()
+    proportions_set: bool = False
 
 
 @dataclass(frozen=True)
@@ -278,7 +290,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         if not _near_centre(mask, config.start_radius):
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
         state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={},
-                        statures=(), shoe_samples=(), shoes=None)
+                        statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False)
     if not mask.any():  # the person left: wait for them to come back to the centre
         state = replace(state, phase="waiting", filter=initial_state())
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
@@ -370,6 +382,14 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         if cost is not None:
             pose = reweight_legs(pose, db.leaf_poses[est.support_leaves].astype(np.float64), est.support_weights,
                                  cost, config.filter.mean_temperature, config.shoes)
+    readings, proportions_set = state.bone_readings, state.proportions_set
+    if (seen is not None and config.proportions is not None and config.body is None and phase == "tracking"
+            and state.phase == "tracking" and not proportions_set and not body_changed):  # a given body is kept
+        readings = (*readings, bone_lengths_read(seen[0], body.height))
+        if len(readings) >= config.proportions.frames:
+            ratio = proportion_ratios(np.stack(readings), body, config.proportions)
+            body, body_changed, proportions_set, readings = adapt_body(body, ratio), True, True, ()
+            log.info("body %s: bone proportions from the appearance cue: %s", body.name, describe(ratio) or "unchanged")
     if seen is not None and config.refine is not None:  # ELMO's local refinement (pose_refinement.py)
         pose = refine_pose(pose, body, camera.pose[:3, :3], seen[0], seen[1], body.height, config.refine)
     place = est.placement.copy()
@@ -389,7 +409,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     reinits = state.reinits + int(est.reinitialised)
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
                     statures=statures, frames_in_phase=frames_in_phase, reinits=reinits, smooth=smooth,
-                    shoe_samples=shoe_samples, shoes=shoes)
+                    shoe_samples=shoe_samples, shoes=shoes, bone_readings=readings, proportions_set=proportions_set)
     t4 = time.perf_counter()
     ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
            "total": (t4 - t0) * 1e3}

@@ -118,6 +118,9 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
         p.add_argument("--no-refine", action="store_true",
                        help="with the appearance cue: publish the filter's pose as it is, not refined toward the "
                             "joints the network reads")
+        p.add_argument("--no-proportions", action="store_true",
+                       help="with the appearance cue: keep the selected body model's bone proportions (by default "
+                            "the torso, arms and legs take the lengths the network reads in the first second)")
         p.add_argument("--pose", choices=("mean", "map"), default="mean",
                        help="publish the posterior-mean pose (default: hedges between the modes of an "
                             "ambiguous silhouette) or the MAP leaf's pose")
@@ -365,6 +368,8 @@ def _config(args: argparse.Namespace) -> Any:
         cfg = replace(cfg, use_mean_pose=False)
     if getattr(args, "no_refine", False):
         cfg = replace(cfg, refine=None)
+    if getattr(args, "no_proportions", False):
+        cfg = replace(cfg, proportions=None)
     net = ensure_appearance(getattr(args, "appearance", None), train_if_missing=False)
     if net is not None:
         cfg = replace(cfg, appearance=net)

@@ -497,3 +497,20 @@ def test_mirrored_reading_averages_both_views(rng: np.random.Generator) -> None:
     sym = 0.5 * (mu + back)  # a symmetric reading is its own mirror image: nothing changes
     s = predict_joints(constant_net(sym, log_var=-6.0), frame, mask, mirror=True)
     assert s is not None and np.allclose(s[0], sym, atol=1e-6) and np.allclose(s[1], np.exp(-6.0), rtol=1e-5)
+
+
+
+def test_a_batch_reads_like_single_inputs(rng: np.random.Generator) -> None:
+    """``forward`` on a batch (the mirrored reading's two views) equals one input at a time."""
+    def w(*shape: int) -> np.ndarray:
+        return rng.normal(0, 0.3, shape).astype(np.float32)
+
+    layers = (Layer("conv", w(4, 4, 3, 3), w(4), 2, True, True), Layer("conv", w(3, 4, 3, 3), w(3), 1, False, True),
+              Layer("dense", w(NOUT, 3 * 4 * 4), w(NOUT), 1, False, False))
+    net = AppearanceNet(size=16, layers=layers, meta={"test": True})
+    x = rng.normal(0, 1, (3, 16, 16, 4)).astype(np.float32)
+    batch = forward(net, x)
+    assert batch.shape == (3, NOUT)
+    for i in range(3):
+        assert np.allclose(batch[i], forward(net, x[i]), atol=1e-5)
+    assert not np.allclose(batch[0], forward(net, np.ascontiguousarray(x[0, :, ::-1])), atol=1e-3)

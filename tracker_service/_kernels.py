@@ -1156,7 +1156,7 @@ def _swing_into(ax: float, ay: float, az: float, bx: float, by: float, bz: float
 def refine_rotations_kernel(local: NDArray[np.float64], cam_rot: NDArray[np.float64], offsets: NDArray[np.float64],
                             parents: NDArray[np.int64], slots: NDArray[np.int64], child_ptr: NDArray[np.int64],
                             child_idx: NDArray[np.int64], target: NDArray[np.float64], gain: NDArray[np.float64],
-                            weight: NDArray[np.float64]) -> NDArray[np.float64]:
+                            weight: NDArray[np.float64], prior: float) -> NDArray[np.float64]:
     """The pose refinement's walk down the kinematic tree (reference:
     :func:`tracker_service.pose_refinement.refine_rotations`, same arguments plus the skeleton's
     ``parents`` (J,), rotation ``slots`` (J,) and children in CSR form ``child_ptr`` (J + 1,),
@@ -1199,11 +1199,15 @@ def refine_rotations_kernel(local: NDArray[np.float64], cam_rot: NDArray[np.floa
             _swing_into(a[0, 0], a[0, 1], a[0, 2], tgt[0, 0], tgt[0, 1], tgt[0, 2], turn)
         else:
             h = np.zeros((3, 3))
+            spread = 0.0
             for q in range(n):
                 w = weight[child_idx[child_ptr[j] + q]]
+                spread += w * (a[q, 0] * a[q, 0] + a[q, 1] * a[q, 1] + a[q, 2] * a[q, 2])
                 for d in range(3):
                     for e in range(3):
                         h[d, e] += w * a[q, d] * tgt[q, e]
+            for d in range(3):
+                h[d, d] += prior * spread
             u, _, vt = np.linalg.svd(h)
             v = np.ascontiguousarray(vt.T)
             ut = np.ascontiguousarray(u.T)

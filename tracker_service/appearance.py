@@ -238,7 +238,7 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     mirror : bool
         Also read the crop flipped left-right (the network was trained on mirrored views too: left
         and right joints swapped, ``x`` negated) and return the mean of both readings, the variance
-        widened by their disagreement; twice the cost.
+        widened by their disagreement (one view alone when the other's output is not finite).
 
     Returns
     -------
@@ -255,10 +255,12 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         return _read(forward(net, x))
     out = forward(net, np.stack([x, x[:, ::-1]]))  # one batch: both views in each layer's product
     read, flipped = _read(out[0]), _read(out[1])
-    if read is None or flipped is None:
-        return None
+    if flipped is None:
+        return read
     idx = np.asarray(MIRROR_JOINTS)
     mu2, var2 = flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]
+    if read is None:  # one finite view is still a reading
+        return mu2, var2
     mu = 0.5 * (read[0] + mu2)
     return mu, 0.5 * (read[1] + var2) + np.square(0.5 * (read[0] - mu2))
 

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, N_PARTS, Body
 
-from .appearance import AppearanceNet, HeadingWindow, joints_cost, predict_joints, propose_leaves_in_window
+from .appearance import AppearanceNet, HeadingWindow, in_view, joints_cost, predict_joints, propose_leaves_in_window
 from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
@@ -109,8 +109,10 @@ class TrackerConfig:
     proportions : ProportionParams or None
         With the appearance cue: after the first frames of tracking, the published skeleton's torso,
         arm and leg bones take the lengths the network reads (:mod:`tracker_service.proportions`;
-        once per session, ``body_changed`` set; not with a given ``body``); None: the selected model's
-        proportions.
+        once per session, ``body_changed`` set; not with a given ``body`` (``--measurements``); only
+        from frames where the person is not cut by the image border); None: the selected model's
+        proportions. Refinement and proportions need the cue's reading, so both are off when
+        ``appearance`` is None or ``filter.appearance_weight`` is 0.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -166,6 +168,7 @@ class TrackerState:
     shoes: ShoeModel | None = None
     bone_readings: tuple[NDArray[np.float64], ...] = ()
     proportions_set: bool = False
+    base_body: Body | None = None  # the model before the proportions were read (proportions.py)
 
 
 @dataclass(frozen=True)
@@ -340,6 +343,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     body_changed = False
+    restarted = False  # the filter restarted at a new body size: the smoother too
+    base_body = state.base_body
     phase: Phase = state.phase
     frames_in_phase = state.frames_in_phase + 1
     scores = state.body_scores
@@ -364,8 +369,12 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         elif config.body is not None:
             body, scale = config.body, config.body.height / db_body.height
         if config.body_candidates or config.body is not None:
-            body_changed = body.name != state.body.name or scale != state.body_scale
-            if body_changed:  # restart the filter at the new size
+            resized = body.name != state.body.name or scale != state.body_scale
+            # a changed skeleton is announced too (the proportions read in an earlier session are dropped)
+            body_changed = resized or not np.array_equal(body.offsets, state.body.offsets)
+            base_body = None
+            if resized:  # restart the filter at the new size
+                restarted = True
                 fstate = initial_state(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
         phase = "tracking"
         frames_in_phase = 0
@@ -384,11 +393,13 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
                                  cost, config.filter.mean_temperature, config.shoes)
     readings, proportions_set = state.bone_readings, state.proportions_set
     if (seen is not None and config.proportions is not None and config.body is None and phase == "tracking"
-            and state.phase == "tracking" and not proportions_set and not body_changed):  # a given body is kept
+            and state.phase == "tracking" and not proportions_set and not body_changed  # a given body is kept
+            and in_view(mask)):  # a person cut by the border is a view the network never saw
         readings = (*readings, bone_lengths_read(seen[0], body.height))
         if len(readings) >= config.proportions.frames:
-            ratio = proportion_ratios(np.stack(readings), body, config.proportions)
-            body, body_changed, proportions_set, readings = adapt_body(body, ratio), True, True, ()
+            base = base_body if base_body is not None else body  # always relative to the model
+            ratio = proportion_ratios(np.stack(readings), base, config.proportions)
+            body, base_body, body_changed, proportions_set, readings = adapt_body(base, ratio), base, True, True, ()
             log.info("body %s: bone proportions from the appearance cue: %s", body.name, describe(ratio) or "unchanged")
     if seen is not None and config.refine is not None:  # ELMO's local refinement (pose_refinement.py)
         pose = refine_pose(pose, body, camera.pose[:3, :3], seen[0], seen[1], body.height, config.refine)
@@ -401,7 +412,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)
     pose[1] += _feet_offset(pose, body, db_body, scale)
     smooth = state.smooth
-    if config.smoothing is not None and phase == "tracking" and not est.reinitialised and not body_changed:
+    if config.smoothing is not None and phase == "tracking" and not est.reinitialised and not restarted:
         smooth, pose = smooth_pose(smooth, clock, pose, config.smoothing)
     else:
         smooth = None
@@ -409,7 +420,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     reinits = state.reinits + int(est.reinitialised)
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
                     statures=statures, frames_in_phase=frames_in_phase, reinits=reinits, smooth=smooth,
-                    shoe_samples=shoe_samples, shoes=shoes, bone_readings=readings, proportions_set=proportions_set)
+                    shoe_samples=shoe_samples, shoes=shoes, bone_readings=readings, proportions_set=proportions_set,
+                    base_body=base_body)
     t4 = time.perf_counter()
     ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
            "total": (t4 - t0) * 1e3}

@@ -59,13 +59,21 @@ class RefineParams:
         Standard deviation (metres) of the filter's joint positions along the camera's x (right),
         y (up) and z (towards the camera) axes: the filter pose's weight against the network's
         variance. Depth is the silhouette's weak axis, hence the larger value.
+    turn_prior : float
+        For the joints with several children (pelvis, chest): the pull toward no turn, relative to
+        the children's spread (:func:`kabsch_rotation`). The chest's children (neck, clavicles)
+        are nearly parallel, so without it a few centimetres of reading noise twist the chest by
+        tens of degrees (and the clavicles back), right joints from wrong rotations.
     """
 
     pose_sd: tuple[float, float, float] = (0.08, 0.08, 0.16)
+    turn_prior: float = 0.3
 
     def __post_init__(self) -> None:
         if len(self.pose_sd) != 3 or not all(np.isfinite(s) and s >= 0 for s in self.pose_sd):
             raise ValueError(f"pose_sd must be three finite values >= 0, got {self.pose_sd}")
+        if not (np.isfinite(self.turn_prior) and self.turn_prior >= 0):
+            raise ValueError(f"turn_prior must be finite and >= 0, got {self.turn_prior}")
 
 
 def swing_rotation(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -99,8 +107,10 @@ def swing_rotation(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np
     return np.eye(3) + s * kx + (1.0 - c) * (kx @ kx)
 
 
-def kabsch_rotation(a: NDArray[np.float64], b: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The rotation ``R`` minimising ``sum_i w_i |R a_i - b_i|^2`` (weighted Kabsch, no reflection).
+def kabsch_rotation(a: NDArray[np.float64], b: NDArray[np.float64], w: NDArray[np.float64],
+                    prior: float = 0.0) -> NDArray[np.float64]:
+    """The rotation ``R`` minimising ``sum_i w_i |R a_i - b_i|^2 + 2 lam (3 - tr R)`` (weighted
+    Kabsch, no reflection, pulled toward no turn), ``lam = prior * sum_i w_i |a_i|^2``.
 
     Parameters
     ----------
@@ -108,20 +118,24 @@ def kabsch_rotation(a: NDArray[np.float64], b: NDArray[np.float64], w: NDArray[n
         Vectors before and their targets.
     w : (n,) float64
         Non-negative weights.
+    prior : float
+        Strength of the pull toward the identity relative to the vectors' spread: about an axis the
+        vectors barely turn (nearly parallel vectors say little about the twist about them), a
+        rotation costs more than the fit gains, so noise cannot spin it.
 
     Returns
     -------
     (3, 3) float64
     """
-    h = (a * w[:, None]).T @ b
+    h = (a * w[:, None]).T @ b + prior * float(w @ np.einsum("ij,ij->i", a, a)) * np.eye(3)
     u, _, vt = np.linalg.svd(h)
     d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0 else -1.0
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
 def refine_rotations(local: NDArray[np.float64], cam_rot: NDArray[np.float64], offsets: NDArray[np.float64],
-                     target: NDArray[np.float64], gain: NDArray[np.float64], weight: NDArray[np.float64]
-                     ) -> NDArray[np.float64]:
+                     target: NDArray[np.float64], gain: NDArray[np.float64], weight: NDArray[np.float64],
+                     prior: float) -> NDArray[np.float64]:
     """Steps 1-3 of the module docstring on rotation matrices (numpy reference of
     :func:`tracker_service._kernels.refine_rotations_kernel`).
 
@@ -139,6 +153,8 @@ def refine_rotations(local: NDArray[np.float64], cam_rot: NDArray[np.float64], o
         ``s^2 / (s^2 + v)`` per joint and camera axis.
     weight : (J,) float64
         Each joint's weight as one of several children (Kabsch).
+    prior : float
+        :attr:`RefineParams.turn_prior`.
 
     Returns
     -------
@@ -163,7 +179,7 @@ def refine_rotations(local: NDArray[np.float64], cam_rot: NDArray[np.float64], o
             continue
         a = (glob_c[j] @ offsets[kids].T).T  # (n, 3) child offsets in camera axes
         tgt = a + gain[kids] * (target[kids] - (pos[j] + a))
-        turn = swing_rotation(a[0], tgt[0]) if len(kids) == 1 else kabsch_rotation(a, tgt, weight[kids])
+        turn = swing_rotation(a[0], tgt[0]) if len(kids) == 1 else kabsch_rotation(a, tgt, weight[kids], prior)
         glob_c[j] = turn @ glob_c[j]
         # the root's rotation is global (world axes: r @ g); the others are relative to the parent
         out[slot] = r @ glob_c[j] if par < 0 else glob_c[par].T @ glob_c[j]
@@ -214,9 +230,9 @@ def refine_pose(pose: NDArray[np.float64], body: Body, cam_rot: NDArray[np.float
     r = np.ascontiguousarray(cam_rot, np.float64)
     if use_kernel:
         new = refine_rotations_kernel(local, r, body.offsets, _PARENTS, _SLOTS, _CHILD_PTR, _CHILD_IDX,
-                                      target, gain, weight)
+                                      target, gain, weight, params.turn_prior)
     else:
-        new = refine_rotations(local, r, body.offsets, target, gain, weight)
+        new = refine_rotations(local, r, body.offsets, target, gain, weight, params.turn_prior)
     out = pose.copy()
     out[3:] = matrix_to_rotvec(new).ravel()
     return out

@@ -102,10 +102,10 @@ def test_the_pipeline_publishes_the_read_proportions_once(small_db, rng: np.rand
 
     frames = [frame(None) for _ in range(6)] + [frame(m) for m in masks]
 
-    def run(cfg: TrackerConfig):  # type: ignore[no-untyped-def]
+    def run(cfg: TrackerConfig, clip: list[np.ndarray] = frames):  # type: ignore[no-untyped-def]
         st = new_state(loaded.body)
         changed = []
-        for i, img in enumerate(frames):
+        for i, img in enumerate(clip):
             st, res = process_frame(st, img, db, loaded.body, cam, cfg, i / 30)
             changed.append(res.body_changed)
         return st, changed
@@ -122,3 +122,8 @@ def test_the_pipeline_publishes_the_read_proportions_once(small_db, rng: np.rand
                 TrackerConfig(background_frames=6, init_frames=3, appearance=net, proportions=None)):
         st, changed = run(cfg)
         assert not any(changed) and np.array_equal(st.body.offsets, loaded.body.offsets)
+    # the person leaves and comes back: read again, relative to the model (not compounded)
+    st, changed = run(base, frames + [frame(None) for _ in range(3)] + [frame(m) for m in masks])
+    assert sum(changed) == 2 and st.proportions_set
+    got = st.body.bone_lengths[adapted] / loaded.body.bone_lengths[adapted]
+    assert np.allclose(got, want[adapted], atol=0.02)

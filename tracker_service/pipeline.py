@@ -111,8 +111,8 @@ class TrackerConfig:
         arm and leg bones take the lengths the network reads (:mod:`tracker_service.proportions`;
         once per session, ``body_changed`` set; not with a given ``body`` (``--measurements``); only
         from frames where the person is not cut by the image border); None: the selected model's
-        proportions. Refinement and proportions need the cue's reading, so both are off when
-        ``appearance`` is None or ``filter.appearance_weight`` is 0.
+        proportions. Refinement and proportions use the cue's reading whether or not the filter
+        weighs leaves by it (``filter.appearance_weight``); without ``appearance`` both are off.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -324,9 +324,10 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     ta = time.perf_counter()
     # (also when the person is cut by the image border, which no training view shows: skipping those
     # frames was measured worse on all three subjects, docs/TRACKER.md session 24)
-    if config.appearance is not None and config.filter.appearance_weight > 0 and len(db.leaf_joints3d):
+    in_filter = config.filter.appearance_weight > 0 and len(db.leaf_joints3d) > 0
+    if config.appearance is not None and (in_filter or config.refine is not None or config.proportions is not None):
         seen = predict_joints(config.appearance, frame, mask, config.appearance_mirror)
-        if seen is not None:
+        if seen is not None and in_filter:
             mu, var = seen
             coords = config.filter.appearance_coords
 

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import JOINT_INDEX, JOINT_NAMES, MIRROR_JOINTS, N_JOINTS, PARENTS, Body
 
-__all__ = ["ADAPTED_BONES", "ProportionParams", "adapt_body", "bone_lengths_read", "proportion_ratios"]
+__all__ = ["ADAPTED_BONES", "ProportionParams", "adapt_body", "bone_lengths_read", "describe", "proportion_ratios"]
 
 #: Bones (named by their child joint) whose length is taken from the readings: the spine, neck and
 #: head, the clavicles, upper arms, thighs and shins.

@@ -26,7 +26,7 @@ from .scene_subject import SubjectSpec
 from .template_db import LoadedDatabase
 from .tree_filter import initial_state
 
-__all__ = ["EvalOptions", "evaluate_motion", "reacquisition_times", "subject_measurements"]
+__all__ = ["EvalOptions", "acceleration_error", "evaluate_motion", "reacquisition_times", "subject_measurements"]
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +81,37 @@ def _stats(v: list[float]) -> dict[str, float]:
     if a.size == 0:
         return {"min": float("nan"), "avg": float("nan"), "max": float("nan")}
     return {"min": round(float(a.min()), 3), "avg": round(float(a.mean()), 3), "max": round(float(a.max()), 3)}
+
+
+def acceleration_error(frame: NDArray[np.int64], est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
+    """Mean joint acceleration error (metres per frame squared): the jitter of the published pose.
+
+    Over every three consecutive frames ``i - 1, i, i + 1`` that were all tracked, the second
+    difference of the estimated root-relative joints minus that of the true ones, its norm averaged
+    over the joints and the triples (the "Accel" error of temporal human-pose papers). A pose that
+    trembles from frame to frame scores high even when its mean error is low.
+
+    Parameters
+    ----------
+    frame : (F,) int64
+        Frame number of each tracked frame (increasing).
+    est, true : (F, J, 3) float64
+        Root-relative joints.
+
+    Returns
+    -------
+    float
+        NaN when no three consecutive frames were tracked.
+    """
+    frame = np.asarray(frame)
+    if len(frame) < 3:
+        return float("nan")
+    ok = (frame[2:] - frame[:-2]) == 2
+    if not ok.any():
+        return float("nan")
+    d = np.asarray(est, np.float64) - np.asarray(true, np.float64)
+    acc = d[2:] - 2.0 * d[1:-1] + d[:-2]
+    return float(np.linalg.norm(acc[ok], axis=-1).mean())
 
 
 def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses: list[int], fps: float,
@@ -161,6 +192,9 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             cfg = replace(cfg, body_candidates=(), body=given_body(given))
         state: TrackerState = new_state(loaded.body)
         errs, root_errs, errs2d, tracked = [], [], [], 0
+        acc_i: list[int] = []  # frame number, estimated and true root-relative joints of the tracked frames
+        acc_e: list[NDArray[np.float64]] = []
+        acc_t: list[NDArray[np.float64]] = []
         present = 0
         t_pre, t_est, t_tot = [], [], []
         init_ms = 0.0
@@ -186,6 +220,9 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             jt, je = fr.truth.joints, res.joints
             e = float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean())
             errs.append(e)
+            acc_i.append(i)
+            acc_e.append(je - je[0])
+            acc_t.append(jt - jt[0])
             root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
             errs2d.append(float(np.linalg.norm(loaded.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
             if was_tracking and res.phase == "tracking":  # steady state; initialisation (body selection) apart
@@ -218,6 +255,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
     reacq = reacquisition_times(np.asarray(err_t), e_arr, losses, options.fps)
     lvl = np.asarray(evals, dtype=np.float64) if evals else np.zeros((0, 3))
     total_ms = float(np.mean(t_tot)) if t_tot else float("nan")
+    accel = (acceleration_error(np.asarray(acc_i, np.int64), np.asarray(acc_e), np.asarray(acc_t)) if acc_i
+             else float("nan"))
     return {
         "motion": motion.name,
         "frames": int(present),
@@ -226,6 +265,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         "root_error_cm": round(float(np.mean(root_errs) * 100), 2) if root_errs else None,
         "mpjpe_2d_px": round(float(np.mean(errs2d)), 2) if errs2d else None,
         "frames_within_10cm": round(float(np.mean(e_arr < 0.10)), 3) if len(e_arr) else 0.0,
+        "accel_error_cm": round(accel * 100, 3) if np.isfinite(accel) else None,
         "reacquire_s_max": (None if not reacq else (round(max(reacq), 3) if np.isfinite(max(reacq)) else None)),
         "forced_losses": len(reacq),
         "reacquired": int(np.sum(np.isfinite(reacq))),

@@ -127,8 +127,9 @@ def main() -> int:
     res["rectangles_rss_mb"] = round(_rss_mb() - rss1, 1)
     del full
     net = ensure_appearance(args.appearance, train_if_missing=True)
-    res["appearance_net"] = None if net is None else {
-        k: net.meta[k] for k in ("samples", "val_rms_x", "val_rms_y", "val_rms_z") if k in net.meta}
+    res["appearance_net"] = None if net is None else [
+        {k: m[k] for k in ("samples", "val_rms_x", "val_rms_y", "val_rms_z") if k in m}
+        for m in (net.meta.get("members") or [net.meta])]  # one entry per network of the ensemble
     held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
     pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
     configs = {
@@ -160,10 +161,16 @@ def main() -> int:
         "xor_no_mirror": TrackerConfig(distance="xor", appearance_mirror=False),
         # the selected model's bone proportions kept (before session 25's proportions from the cue)
         "xor_no_proportions": TrackerConfig(distance="xor", proportions=None),
+        # the refinement toward each frame's raw reading, not the Kalman-filtered one (before session 26)
+        "xor_no_reading_filter": TrackerConfig(distance="xor", reading_filter=None),
+        # the ensemble's first network alone (session 24's; before session 26)
+        "xor_one_network": TrackerConfig(distance="xor"),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not
     configs = {k: (c if k in ("xor_silhouette_only", "xor_no_appearance") else replace(c, appearance=net))
                for k, c in configs.items()}
+    if net is not None:
+        configs["xor_one_network"] = replace(configs["xor_one_network"], appearance=replace(net, members=()))
     given = {"xor_given_height": ("height",),
              "xor_given_measurements": ("height", "group", "chest", "waist", "hip", "shoulder", "arm", "leg")}
     if args.configs:
@@ -193,6 +200,7 @@ def main() -> int:
         re = [r["reacquire_s_max"] for r in rs]
         summary[name] = {"mpjpe_cm": avg("mpjpe_cm"), "root_error_cm": avg("root_error_cm"),
                          "mpjpe_2d_px": avg("mpjpe_2d_px"), "frames_within_10cm": avg("frames_within_10cm"),
+                         "accel_error_cm": avg("accel_error_cm"),
                          "reacquire_s_max": None if any(x is None for x in re) else max(re),
                          "forced_losses": int(sum(r["forced_losses"] for r in rs)),
                          "reacquired": int(sum(r["reacquired"] for r in rs)),
@@ -204,7 +212,8 @@ def main() -> int:
                                                     axis=0).round(0).tolist()}
     res["summary"] = summary
     res["per_take"] = {k: [{kk: r[kk] for kk in ("take", "mpjpe_cm", "root_error_cm", "frames_within_10cm",
-                                                 "reacquire_s_max", "body_selected", "subject_height_m")} for r in v]
+                                                 "accel_error_cm", "reacquire_s_max", "body_selected",
+                                                 "subject_height_m")} for r in v]
                        for k, v in rows.items()}
     if not args.no_pyramid:
         res["pyramid"] = pyramid_speedup(loaded)

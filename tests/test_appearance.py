@@ -456,11 +456,17 @@ def test_the_published_pose_is_refined_towards_the_reading(small_db, rng: np.ran
     reading = db.leaf_joints3d[int(np.argmax(db.leaf_joints3d[:, hand, 2]))].astype(np.float64)
     net = constant_net(reading, log_var=-7.0)
 
+    carried: list[bool] = []
+
     def run(cfg: TrackerConfig) -> tuple[list[float], list[np.ndarray], list[float]]:
         st = new_state(loaded.body)
         dist, weights, hand_z = [], [], []
+        carried.clear()
         for i, img in enumerate(frames):
             st, res = process_frame(st, img, db, loaded.body, cam, cfg, i / 30)
+            carried.append(st.reading is not None)
+            if res.phase != "tracking":
+                assert st.reading is None  # the readings' history starts with the track
             if res.phase == "tracking" and res.joints is not None:
                 seen = camera_joints(res.joints, cam, st.body.height).astype(np.float64)
                 dist.append(float(np.linalg.norm(seen - reading, axis=1).mean()))
@@ -476,6 +482,12 @@ def test_the_published_pose_is_refined_towards_the_reading(small_db, rng: np.ran
     assert np.mean(d_on) < 0.3 * np.mean(d_off), (np.mean(d_on), np.mean(d_off))
     # the hand's depth, which the silhouette cannot see
     assert np.mean(z_on) < 0.5 * np.mean(z_off), (np.mean(z_on), np.mean(z_off))
+    assert sum(carried) >= 10  # the readings were filtered over the track (reading_filter.py)
+    # a steady reading is its own filtered value, with a variance shrunk by the frames before: the
+    # pose is pulled toward it at least as far as by the raw reading
+    d_raw, _, _ = run(replace(base, reading_filter=None))
+    assert not any(carried)
+    assert np.mean(d_on) < np.mean(d_raw), (np.mean(d_on), np.mean(d_raw))
 
 
 def test_mirrored_reading_averages_both_views(rng: np.random.Generator) -> None:
@@ -514,3 +526,45 @@ def test_a_batch_reads_like_single_inputs(rng: np.random.Generator) -> None:
     for i in range(3):
         assert np.allclose(batch[i], forward(net, x[i]), atol=1e-5)
     assert not np.allclose(batch[0], forward(net, np.ascontiguousarray(x[0, :, ::-1])), atol=1e-3)
+
+
+def test_an_ensemble_pools_its_networks_readings_and_round_trips(tmp_path: Path, rng: np.random.Generator) -> None:
+    """``ensemble``: several networks in one file; ``predict_joints`` pools every network's reading
+    (and, mirrored, every view's) as one Gaussian: the mean of the means, the mixture's variance."""
+    from tracker_service.appearance import ensemble, pool_readings
+
+    a_mu, b_mu = rng.normal(0, 0.2, (N_JOINTS, 3)), rng.normal(0, 0.2, (N_JOINTS, 3))
+    a, b = constant_net(a_mu, log_var=-6.0), constant_net(b_mu, log_var=-5.0)
+    both = ensemble([a, b])
+    assert len(both.networks) == 2 and both.meta == {"members": [{"test": True}, {"test": True}]}
+    frame = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
+    mask = np.zeros((120, 160), bool)
+    mask[20:100, 60:100] = True
+    got = predict_joints(both, frame, mask)
+    assert got is not None
+    mean = 0.5 * (a_mu + b_mu)
+    assert np.allclose(got[0], mean, atol=1e-6)
+    assert np.allclose(got[1], 0.5 * (np.exp(-6.0) + np.exp(-5.0)) + np.square(0.5 * (a_mu - b_mu)), rtol=1e-5)
+    # mirrored: four readings pooled
+    m = predict_joints(both, frame, mask, mirror=True)
+    ma, mb = predict_joints(a, frame, mask, mirror=True), predict_joints(b, frame, mask, mirror=True)
+    assert m is not None and ma is not None and mb is not None
+    assert np.allclose(m[0], 0.5 * (ma[0] + mb[0]), atol=1e-6)
+    # the file keeps every member; a member's changed weight is caught
+    p = save_appearance(tmp_path / "ens.npz", ensemble([both, a]))
+    back = load_appearance(p)
+    assert len(back.networks) == 3 and len(back.meta["members"]) == 3
+    x = net_input(frame[:16, :16], mask[:16, :16])
+    for k in range(3):
+        assert np.array_equal(forward(back, x, k), forward(ensemble([a, b, a]), x, k))
+    with np.load(p) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["m2_b1"] = arrays["m2_b1"] + np.float32(1.0)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(AppearanceError, match="member 2's layer 1"):
+        load_appearance(tmp_path / "bad.npz")
+    # pooling: non-finite readings are left out; one reading is itself; none is None
+    r = (np.ones((2, 3)), np.full((2, 3), 0.5))
+    assert pool_readings([None, r]) is r and pool_readings([None]) is None
+    with pytest.raises(ValueError):
+        ensemble([a, constant_net(a_mu, size=32)])

@@ -31,7 +31,7 @@ def ns(**kw: object) -> argparse.Namespace:
     appearance network unless given: the tests do not depend on a trained one)."""
     base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
             "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off",
-            "no_refine": False, "no_proportions": False}
+            "no_refine": False, "no_proportions": False, "no_reading_filter": False}
     return argparse.Namespace(**(base | kw))
 
 
@@ -50,6 +50,7 @@ def test_tracker_options_build_the_config() -> None:
     assert cfg.shoes is not None and _config(ns(no_shoes=True)).shoes is None
     assert cfg.refine is not None and _config(ns(no_refine=True)).refine is None
     assert cfg.proportions is not None and _config(ns(no_proportions=True)).proportions is None
+    assert cfg.reading_filter is not None and _config(ns(no_reading_filter=True)).reading_filter is None
     for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
         with pytest.raises(ValueError):
             _config(ns(**bad))
@@ -87,16 +88,17 @@ def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> Non
     (tmp_path / "junk.npz").write_text("not a network")
     with pytest.raises(AppearanceError, match="corrupt"):
         _config(ns(appearance=str(tmp_path / "junk.npz")))
-    assert _passes("1000:3,2000:2") == ((1000, 3), (2000, 2))
-    for bad in ("", "1000", "a:b", "5:0"):
+    assert _passes("1000:3,2000:2") == (((1000, 3), (2000, 2)),)
+    assert _passes("1000:3,2000:2;5000:2") == (((1000, 3), (2000, 2)), ((5000, 2),))  # one list per network
+    for bad in ("", "1000", "a:b", "5:0", "1000:3;", ";1000:3"):
         with pytest.raises(argparse.ArgumentTypeError):
             _passes(bad)
 
 
 @pytest.mark.slow
 def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
-    """``mocap-tracker train-appearance`` on two takes, one short pass, one epoch: a network file the
-    tracker loads, and its rendered views cached beside it."""
+    """``mocap-tracker train-appearance`` on two takes, one short pass per network, one epoch: an
+    ensemble of two networks in one file the tracker loads, and its rendered views cached beside it."""
     import subprocess
     import sys
 
@@ -104,17 +106,23 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
 
     out = tmp_path / "app" / "net.npz"
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--takes", "2", "--passes",
-                        "7:60", "--epochs", "1", "--jobs", "1", "--out", str(out)],
+                        "7:60;8:60", "--epochs", "1", "--jobs", "1", "--out", str(out)],
                        cwd=REPO, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    assert "appearance network:" in r.stdout and out.is_file()
+    assert "appearance network 2:" in r.stdout and out.is_file()
     net = load_appearance(out)
-    assert net.size == 64 and net.meta["training_takes"] == 2 and net.meta["config"]["passes"] == [[7, 60]]
-    assert len(list((out.parent / "data" / "7_60_64").glob("*.npz"))) == 2
+    assert net.size == 64 and net.meta["training_takes"] == 2 and len(net.networks) == 2
+    assert [m["config"]["passes"] for m in net.meta["members"]] == [[[7, 60]], [[8, 60]]]
+    assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
+    for folder in ("7_60_64", "8_60_64"):
+        assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 2
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--members", "3", "--out",
+                        str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "--passes" in r.stderr and "Traceback" not in r.stderr
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:0"],
                        cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "EVERY" in r.stderr
-    for flag in ("--epochs", "--takes", "--jobs"):  # 0 is an error, not "the default"
+    for flag in ("--epochs", "--takes", "--jobs", "--members"):  # 0 is an error, not "the default"
         r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", flag, "0", "--out",
                             str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
         assert r.returncode != 0 and f"{flag} must be >= 1" in r.stderr and "Traceback" not in r.stderr

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -42,8 +43,8 @@ from ._kernels import proposal_cost_kernel
 from .camera import Camera
 
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
-           "Layer", "camera_joints", "default_appearance_path", "forward", "in_view", "joints_cost",
-           "load_appearance", "net_input", "person_crop", "predict_joints", "propose_leaves",
+           "Layer", "camera_joints", "default_appearance_path", "ensemble", "forward", "in_view", "joints_cost",
+           "load_appearance", "net_input", "person_crop", "pool_readings", "predict_joints", "propose_leaves",
            "propose_leaves_in_window", "save_appearance"]
 
 APPEARANCE_FORMAT = "mocap-appearance-net"
@@ -114,10 +115,43 @@ class AppearanceNet:
     size: int
     layers: tuple[Layer, ...]
     meta: dict[str, Any]
+    #: Further networks of the same input and output, trained on other views with other initial
+    #: weights: an ensemble whose readings :func:`predict_joints` pools (session 26).
+    members: tuple[tuple[Layer, ...], ...] = ()
 
     @property
     def n_outputs(self) -> int:
         return int(self.layers[-1].weight.shape[0])
+
+    @property
+    def networks(self) -> tuple[tuple[Layer, ...], ...]:
+        """Every network's layers, the first one's first."""
+        return (self.layers, *self.members)
+
+
+def ensemble(nets: Sequence[AppearanceNet]) -> AppearanceNet:
+    """One network file of several networks (their readings pooled by :func:`predict_joints`).
+
+    Parameters
+    ----------
+    nets : sequence of AppearanceNet
+        Same input size and outputs; their own members join too.
+
+    Returns
+    -------
+    AppearanceNet
+        ``meta["members"]`` lists each network's own ``meta``.
+    """
+    if not nets:
+        raise ValueError("an ensemble needs at least one network")
+    first = nets[0]
+    for n in nets[1:]:
+        if n.size != first.size or n.n_outputs != first.n_outputs:
+            raise ValueError(f"networks of different inputs or outputs ({n.size}/{n.n_outputs} vs "
+                             f"{first.size}/{first.n_outputs}) cannot be pooled")
+    layers = [lay for n in nets for lay in n.networks]
+    metas = [m for n in nets for m in (n.meta.get("members") or [n.meta])]
+    return AppearanceNet(first.size, layers[0], {"members": metas}, tuple(layers[1:]))
 
 
 def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int
@@ -192,7 +226,7 @@ def _conv(x: NDArray[np.float32], layer: Layer) -> NDArray[np.float32]:
     return y.reshape(n, ho, wo, -1)
 
 
-def forward(net: AppearanceNet, x: NDArray[np.float32]) -> NDArray[np.float32]:
+def forward(net: AppearanceNet, x: NDArray[np.float32], member: int = 0) -> NDArray[np.float32]:
     """The network's raw output for one input or a batch.
 
     Parameters
@@ -200,6 +234,8 @@ def forward(net: AppearanceNet, x: NDArray[np.float32]) -> NDArray[np.float32]:
     net : AppearanceNet
     x : (S, S, 4) or (N, S, S, 4) float32
         :func:`net_input`.
+    member : int
+        Which of the ensemble's networks (0: ``net.layers``).
 
     Returns
     -------
@@ -209,7 +245,7 @@ def forward(net: AppearanceNet, x: NDArray[np.float32]) -> NDArray[np.float32]:
     single = h.ndim == 3
     if single:
         h = h[None]
-    for layer in net.layers:
+    for layer in net.networks[member]:
         if layer.kind == "conv":
             h = _conv(h, layer)
             if layer.relu:
@@ -239,6 +275,8 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         Also read the crop flipped left-right (the network was trained on mirrored views too: left
         and right joints swapped, ``x`` negated) and return the mean of both readings, the variance
         widened by their disagreement (one view alone when the other's output is not finite).
+        An ensemble (``net.members``) reads every view with every network and pools all readings
+        the same way (:func:`pool_readings`).
 
     Returns
     -------
@@ -251,18 +289,39 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     if c is None:
         return None
     x = net_input(*c)
-    if not mirror:
-        return _read(forward(net, x))
-    out = forward(net, np.stack([x, x[:, ::-1]]))  # one batch: both views in each layer's product
-    read, flipped = _read(out[0]), _read(out[1])
-    if flipped is None:
-        return read
+    views = np.stack([x, x[:, ::-1]]) if mirror else x[None]  # one batch: both views in each layer's product
     idx = np.asarray(MIRROR_JOINTS)
-    mu2, var2 = flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]
-    if read is None:  # one finite view is still a reading
-        return mu2, var2
-    mu = 0.5 * (read[0] + mu2)
-    return mu, 0.5 * (read[1] + var2) + np.square(0.5 * (read[0] - mu2))
+    readings = []
+    for k in range(len(net.networks)):
+        out = forward(net, views, k)
+        readings.append(_read(out[0]))
+        if mirror and (flipped := _read(out[1])) is not None:
+            readings.append((flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]))
+    return pool_readings(readings)
+
+
+def pool_readings(readings: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]] | None]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Several Gaussian readings of the same joints as one: the mean of the means, and the
+    mixture's variance (the mean variance widened by the means' spread). Readings that are None
+    (not finite) are left out; None when none is left.
+
+    Parameters
+    ----------
+    readings : sequence of ((J, 3) float64, (J, 3) float64) or None
+
+    Returns
+    -------
+    mu, var : (J, 3) float64, or None
+    """
+    ok = [r for r in readings if r is not None]
+    if not ok:
+        return None
+    if len(ok) == 1:
+        return ok[0]
+    mus = np.stack([r[0] for r in ok])
+    mu = mus.mean(axis=0)
+    return mu, np.mean([r[1] for r in ok], axis=0) + np.square(mus - mu).mean(axis=0)
 
 
 def _read(out: NDArray[np.float32]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -403,14 +462,21 @@ def save_appearance(path: str | Path, net: AppearanceNet) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, NDArray[Any]] = {}
-    spec = []
-    for i, layer in enumerate(net.layers):
-        arrays[f"w{i}"] = np.ascontiguousarray(layer.weight, np.float32)
-        arrays[f"b{i}"] = np.ascontiguousarray(layer.bias, np.float32)
-        spec.append({"kind": layer.kind, "stride": layer.stride, "pool": layer.pool, "relu": layer.relu,
-                     "crc_w": zlib.crc32(arrays[f"w{i}"].tobytes()), "crc_b": zlib.crc32(arrays[f"b{i}"].tobytes())})
-    header = {"format": APPEARANCE_FORMAT, "version": APPEARANCE_VERSION, "size": net.size, "layers": spec,
-              "meta": net.meta}
+
+    def specs(layers: tuple[Layer, ...], prefix: str) -> list[dict[str, Any]]:
+        spec = []
+        for i, layer in enumerate(layers):
+            w, b = f"{prefix}w{i}", f"{prefix}b{i}"
+            arrays[w] = np.ascontiguousarray(layer.weight, np.float32)
+            arrays[b] = np.ascontiguousarray(layer.bias, np.float32)
+            spec.append({"kind": layer.kind, "stride": layer.stride, "pool": layer.pool, "relu": layer.relu,
+                         "crc_w": zlib.crc32(arrays[w].tobytes()), "crc_b": zlib.crc32(arrays[b].tobytes())})
+        return spec
+
+    header = {"format": APPEARANCE_FORMAT, "version": APPEARANCE_VERSION, "size": net.size,
+              "layers": specs(net.layers, ""), "meta": net.meta}
+    if net.members:  # (a reader of one network ignores them and reads the first)
+        header["members"] = [specs(m, f"m{k + 1}_") for k, m in enumerate(net.members)]
     tmp = p.with_name(p.name + ".partial.npz")
     arrays["header"] = np.array(json.dumps(header, default=float))
     np.savez(tmp, **arrays)  # type: ignore[arg-type]
@@ -442,31 +508,42 @@ def load_appearance(path: str | Path) -> AppearanceNet:
     if header.get("version") != APPEARANCE_VERSION:
         raise AppearanceError(f"stale appearance network at {p} (format v{header.get('version')}, this program "
                               f"needs v{APPEARANCE_VERSION}); {hint}")
-    try:
+    def read_layers(spec: list[dict[str, Any]], prefix: str, what: str) -> tuple[Layer, ...]:
         layers = []
-        for i, s in enumerate(header["layers"]):
-            w, b = arrays[f"w{i}"], arrays[f"b{i}"]
+        for i, s in enumerate(spec):
+            w, b = arrays[f"{prefix}w{i}"], arrays[f"{prefix}b{i}"]
             if zlib.crc32(np.ascontiguousarray(w).tobytes()) != s["crc_w"] or \
                     zlib.crc32(np.ascontiguousarray(b).tobytes()) != s["crc_b"]:
-                raise AppearanceError(f"{p} is corrupt (checksum mismatch in layer {i}); {hint}")
+                raise AppearanceError(f"{p} is corrupt (checksum mismatch in {what}layer {i}); {hint}")
             if s["kind"] not in ("conv", "dense") or w.dtype != np.float32 or b.shape != (w.shape[0],) or \
                     (s["kind"] == "conv" and w.shape[2:] != (3, 3)) or (s["kind"] == "dense" and w.ndim != 2) or \
                     not 1 <= int(s["stride"]) <= 4:
-                raise AppearanceError(f"{p}: layer {i} has inconsistent shapes {w.shape} / {b.shape} or stride "
-                                      f"{s['stride']}; {hint}")
+                raise AppearanceError(f"{p}: {what}layer {i} has inconsistent shapes {w.shape} / {b.shape} or "
+                                      f"stride {s['stride']}; {hint}")
             if not (np.isfinite(w).all() and np.isfinite(b).all()):
-                raise AppearanceError(f"{p}: layer {i} holds non-finite weights (a diverged training); {hint}")
+                raise AppearanceError(f"{p}: {what}layer {i} holds non-finite weights (a diverged training); {hint}")
             layers.append(Layer(s["kind"], w, b, int(s["stride"]), bool(s["pool"]), bool(s["relu"])))
+        if not layers:
+            raise AppearanceError(f"{p}: {what}has no layers; {hint}")
+        return tuple(layers)
+
+    try:
+        first = read_layers(header["layers"], "", "")
+        members = tuple(read_layers(spec, f"m{k + 1}_", f"member {k + 1}'s ")
+                        for k, spec in enumerate(header.get("members", [])))
         if not 8 <= int(header["size"]) <= 512:
             raise AppearanceError(f"{p}: input size {header['size']} is out of range; {hint}")
-        net = AppearanceNet(size=int(header["size"]), layers=tuple(layers), meta=dict(header.get("meta", {})))
-        probe = forward(net, np.zeros((net.size, net.size, 4), np.float32))
+        net = AppearanceNet(size=int(header["size"]), layers=first, meta=dict(header.get("meta", {})),
+                            members=members)
+        probes = [forward(net, np.zeros((net.size, net.size, 4), np.float32), k) for k in range(len(net.networks))]
     except AppearanceError:
         raise
     except (KeyError, TypeError, ValueError, IndexError, ArithmeticError) as e:
         raise AppearanceError(f"inconsistent appearance network at {p} ({type(e).__name__}: {e}); {hint}") from None
-    if probe.shape != (2 * N_JOINTS * 3,):
-        raise AppearanceError(f"{p} outputs {probe.shape[0]} values, expected {2 * N_JOINTS * 3}; {hint}")
-    if not np.isfinite(probe).all():
-        raise AppearanceError(f"{p} gives non-finite outputs; {hint}")
+    for k, probe in enumerate(probes):
+        what = f" (member {k})" if k else ""
+        if probe.shape != (2 * N_JOINTS * 3,):
+            raise AppearanceError(f"{p}{what} outputs {probe.shape[0]} values, expected {2 * N_JOINTS * 3}; {hint}")
+        if not np.isfinite(probe).all():
+            raise AppearanceError(f"{p}{what} gives non-finite outputs; {hint}")
     return net

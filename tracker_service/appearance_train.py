@@ -40,7 +40,7 @@ from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 
 from .appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
 
-__all__ = ["Samples", "TrainConfig", "export_layers", "render_samples", "render_take", "train_network"]
+__all__ = ["MEMBER_PASSES", "Samples", "TrainConfig", "export_layers", "render_samples", "render_take", "train_network"]
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +79,14 @@ class TrainConfig:
     mse_weight: float = 100.0
     validation_every: int = 20
     seed: int = 0
+
+
+#: The passes of each network of the product's ensemble (``train-appearance``'s default, session 26):
+#: the first is session 24's network; the second sees two other people per take and shares two passes.
+MEMBER_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (
+    ((1000, 3), (2000, 2), (3000, 2), (4000, 2)),
+    ((5000, 2), (6000, 2), (2000, 2), (3000, 2)),
+)
 
 
 @dataclass(frozen=True)

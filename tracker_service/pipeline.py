@@ -41,6 +41,7 @@ from .placement import (
 )
 from .pose_refinement import RefineParams, refine_pose
 from .proportions import ProportionParams, adapt_body, bone_lengths_read, describe, proportion_ratios
+from .reading_filter import ReadingFilterParams, ReadingState, filter_reading
 from .shoes import ShoeModel, ShoeParams, band_pixels, feet_cost, foot_points, learn_shoes, reweight_legs, shoe_pixels
 from .skin import SkinModel, observe_skin
 from .smoothing import OneEuroParams, SmoothState, smooth_pose
@@ -113,6 +114,10 @@ class TrackerConfig:
         from frames where the person is not cut by the image border); None: the selected model's
         proportions. Refinement and proportions use the cue's reading whether or not the filter
         weighs leaves by it (``filter.appearance_weight``); without ``appearance`` both are off.
+    reading_filter : ReadingFilterParams or None
+        With the refinement: the network's readings are filtered over time by a constant-velocity
+        Kalman filter (:mod:`tracker_service.reading_filter`) before the published pose is refined
+        toward them; None: each frame's raw reading.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -140,6 +145,7 @@ class TrackerConfig:
     appearance_mirror: bool = True
     refine: RefineParams | None = field(default_factory=RefineParams)
     proportions: ProportionParams | None = field(default_factory=ProportionParams)
+    reading_filter: ReadingFilterParams | None = field(default_factory=ReadingFilterParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
 
@@ -169,6 +175,7 @@ class TrackerState:
     bone_readings: tuple[NDArray[np.float64], ...] = ()
     proportions_set: bool = False
     base_body: Body | None = None  # the model before the proportions were read (proportions.py)
+    reading: ReadingState | None = None  # the network's readings filtered over time (reading_filter.py)
 
 
 @dataclass(frozen=True)
@@ -402,6 +409,12 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             ratio = proportion_ratios(np.stack(readings), base, config.proportions)
             body, base_body, body_changed, proportions_set, readings = adapt_body(base, ratio), base, True, True, ()
             log.info("body %s: bone proportions from the appearance cue: %s", body.name, describe(ratio) or "unchanged")
+    reading = state.reading
+    if phase != "tracking" or est.reinitialised or restarted:
+        reading = None  # a new track: the readings' history belongs to the old one
+    elif seen is not None and config.reading_filter is not None and config.refine is not None:
+        reading, *filtered = filter_reading(reading, clock, seen[0], seen[1], config.reading_filter)
+        seen = (filtered[0], filtered[1])
     if seen is not None and config.refine is not None:  # ELMO's local refinement (pose_refinement.py)
         pose = refine_pose(pose, body, camera.pose[:3, :3], seen[0], seen[1], body.height, config.refine)
     place = est.placement.copy()
@@ -422,7 +435,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     state = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
                     statures=statures, frames_in_phase=frames_in_phase, reinits=reinits, smooth=smooth,
                     shoe_samples=shoe_samples, shoes=shoes, bone_readings=readings, proportions_set=proportions_set,
-                    base_body=base_body)
+                    base_body=base_body, reading=reading)
     t4 = time.perf_counter()
     ms |= {"preprocess": (t2 - t1) * 1e3, "estimate": (t4 - t2) * 1e3, "filter": (t3 - t2) * 1e3,
            "total": (t4 - t0) * 1e3}

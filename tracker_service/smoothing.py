@@ -36,8 +36,14 @@ class OneEuroParams:
     min_cutoff_rot, beta_rot : float
         Minimum cut-off (Hz) and speed coefficient (Hz per rad/s) of the joint rotations.
     min_cutoff_root, beta_root : float
-        The same for the root (whole-body) orientation, which a person changes slowly: smoothed
-        harder, as leaf-to-leaf heading jitter is the largest.
+        The same for the root (whole-body) orientation. Until session 25 it was smoothed harder
+        (1.0 Hz, 0.2) than the joints (1.5 Hz, 0.5), as leaf-to-leaf heading jitter was the
+        largest; once the published pose was refined toward the appearance network's joints, that
+        lag cost more than the jitter it removed. Session 26's defaults (5 Hz, 1.5 for both), with
+        the network's readings Kalman-filtered before the refinement
+        (:mod:`tracker_service.reading_filter`) and an ensemble of two networks, keep the published
+        pose's acceleration error where session 25 had it (1.40 vs 1.41 cm per frame², 17
+        held-out takes, seed 11) and lower its error (docs/TRACKER.md, session 26).
     d_cutoff : float
         Cut-off (Hz) of the speed estimate.
     max_gap_s : float
@@ -46,10 +52,10 @@ class OneEuroParams:
 
     min_cutoff_pos: float = 1.5
     beta_pos: float = 2.0
-    min_cutoff_rot: float = 1.5
-    beta_rot: float = 0.5
-    min_cutoff_root: float = 1.0
-    beta_root: float = 0.2
+    min_cutoff_rot: float = 5.0
+    beta_rot: float = 1.5
+    min_cutoff_root: float = 5.0
+    beta_root: float = 1.5
     d_cutoff: float = 1.0
     max_gap_s: float = 0.5
 

@@ -80,9 +80,13 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
     ap.add_argument("--out", metavar="PATH", help="network file (default: out/appearance/net.npz)")
     ap.add_argument("--mocap", metavar="DIR", help="recordings folder (default: ../shared/mocap or $MOCAP_DATA)")
     ap.add_argument("--epochs", type=int, metavar="N", help="training epochs (default: 15)")
-    ap.add_argument("--passes", type=_passes, metavar="SEED:EVERY,...",
-                    help="one pass per pair: every take on the person SEED+row chooses, every EVERY-th frame "
-                         "(default: 1000:3,2000:2,3000:2,4000:2)")
+    ap.add_argument("--passes", type=_passes, metavar="SEED:EVERY,...[;...]",
+                    help="one pass per pair: every take on the person SEED+row chooses, every EVERY-th frame; "
+                         "one list per network, separated by ';' (default: 1000:3,2000:2,3000:2,4000:2 for the "
+                         "first, 5000:2,6000:2,2000:2,3000:2 for the second)")
+    ap.add_argument("--members", type=int, metavar="N",
+                    help="networks in the ensemble, each trained on its own passes with its own initial weights "
+                         "(default: as many as --passes lists, else 2)")
     ap.add_argument("--takes", type=int, metavar="N", help="use only the first N training takes (quick builds)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
                     help="rendering processes (default: the CPUs)")
@@ -121,6 +125,9 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
         p.add_argument("--no-proportions", action="store_true",
                        help="with the appearance cue: keep the selected body model's bone proportions (by default "
                             "the torso, arms and legs take the lengths the network reads in the first second)")
+        p.add_argument("--no-reading-filter", action="store_true",
+                       help="with the refinement: refine toward each frame's raw reading, not the readings "
+                            "Kalman-filtered over time")
         p.add_argument("--pose", choices=("mean", "map"), default="mean",
                        help="publish the posterior-mean pose (default: hedges between the modes of an "
                             "ambiguous silhouette) or the MAP leaf's pose")
@@ -147,7 +154,7 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                         description="Render the synthetic scene for a BVH recording or gesture script (a subject "
                                     "unlike the database's body models), run the whole pipeline from pixels and "
                                     "print one JSON object: mpjpe_cm, root_error_cm, mpjpe_2d_px, "
-                                    "frames_within_10cm, reacquire_s_max, fps, ms_per_frame, "
+                                    "frames_within_10cm, accel_error_cm (jitter), reacquire_s_max, fps, ms_per_frame, "
                                     "distance_evals_per_level, templates, estimator, distance, body_selected, frames.")
     src = ep.add_mutually_exclusive_group(required=True)
     src.add_argument("--bvh", metavar="FILE")
@@ -176,12 +183,14 @@ def ensure_db(path: str | None, body: str = _DEFAULT_BODY, build_if_missing: boo
         return load_db(p)
 
 
-def _passes(text: str) -> tuple[tuple[int, int], ...]:
+def _passes(text: str) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """``SEED:EVERY,...`` per network, networks separated by ``;``."""
     try:
-        out = tuple((int(a), int(b)) for a, b in (t.split(":") for t in text.split(",") if t.strip()))
+        out = tuple(tuple((int(a), int(b)) for a, b in (t.split(":") for t in group.split(",") if t.strip()))
+                    for group in text.split(";"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected SEED:EVERY[,SEED:EVERY...], got {text!r}") from None
-    if not out or any(every < 1 for _, every in out):
+        raise argparse.ArgumentTypeError(f"expected SEED:EVERY[,SEED:EVERY...][;...], got {text!r}") from None
+    if not out or any(not g or any(every < 1 for _, every in g) for g in out):
         raise argparse.ArgumentTypeError(f"expected SEED:EVERY pairs with EVERY >= 1, got {text!r}")
     return out
 
@@ -209,46 +218,57 @@ def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
     return load_appearance(p)
 
 
-def _train_appearance(out: Path, mocap: str | None, epochs: int | None, passes: tuple[tuple[int, int], ...] | None,
-                      takes: int | None, jobs: int) -> dict[str, Any]:
+def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
+                      passes: tuple[tuple[tuple[int, int], ...], ...] | None, takes: int | None, jobs: int,
+                      members: int | None = None) -> dict[str, Any]:
     from dataclasses import replace as dc_replace
 
     from tqdm import tqdm
 
-    from .appearance import save_appearance
-    from .appearance_train import TrainConfig, render_samples, train_network
+    from .appearance import ensemble, save_appearance
+    from .appearance_train import MEMBER_PASSES, TrainConfig, render_samples, train_network
     from .db_build import is_held_out
 
+    n = members or (len(passes) if passes else len(MEMBER_PASSES))
+    plan = passes or MEMBER_PASSES[:n]
+    if len(plan) != n:
+        raise ValueError(f"{n} network(s) need {n} pass list(s) separated by ';' in --passes, got {len(plan)}"
+                         if passes else f"--members {n}: the defaults cover {len(MEMBER_PASSES)} networks; "
+                         f"give each one's --passes (';'-separated)")
     if mocap:
         os.environ["MOCAP_DATA"] = mocap
     from protocol.mocap_data import index_entries, mocap_root
 
-    cfg = TrainConfig()
-    if epochs:
-        cfg = dc_replace(cfg, epochs=epochs)
-    if passes:
-        cfg = dc_replace(cfg, passes=passes)
     root = mocap_root()
     entries = [(i, str(root / e.path)) for i, e in enumerate(index_entries()) if not is_held_out(i)]
     if takes:
         entries = entries[:takes]
+    configs = [dc_replace(TrainConfig(), passes=plan[k], seed=k, **({"epochs": epochs} if epochs else {}))
+               for k in range(n)]
     t0 = time.perf_counter()
+    every_pass = tuple(dict.fromkeys(p for c in configs for p in c.passes))
     with tqdm(desc="render training views", unit="take") as bar:
         def rendered(done: int, total: int) -> None:
             bar.total = total
             bar.n = done
             bar.refresh()
 
-        samples = render_samples(entries, cfg.passes, cfg.size, out.parent / "data", jobs, rendered)
+        render_samples(entries, every_pass, configs[0].size, out.parent / "data", jobs, rendered)
     t1 = time.perf_counter()
-    with tqdm(total=cfg.epochs, desc=f"train on {len(samples)} views", unit="epoch") as bar:
-        def trained(epoch: int, epochs: int, fig: dict[str, float]) -> None:
-            bar.update(1)
-            bar.set_postfix({k: round(v, 4) for k, v in fig.items() if k != "seconds"})
+    nets = []
+    for k, cfg in enumerate(configs):
+        samples = render_samples(entries, cfg.passes, cfg.size, out.parent / "data")  # cached: read only
+        with tqdm(total=cfg.epochs, desc=f"train network {k + 1}/{n} on {len(samples)} views", unit="epoch") as bar:
+            def trained(epoch: int, epochs: int, fig: dict[str, float]) -> None:
+                bar.update(1)
+                bar.set_postfix({k: round(v, 4) for k, v in fig.items() if k != "seconds"})
 
-        net = train_network(samples, cfg, threads=max(jobs, 1), progress=trained)
-    meta = net.meta | {"render_s": round(t1 - t0, 1), "train_s": round(time.perf_counter() - t1, 1),
-                       "mocap": str(root), "training_takes": len(entries)}
+            nets.append(train_network(samples, cfg, threads=max(jobs, 1), progress=trained))
+        del samples
+    net = nets[0] if n == 1 else ensemble(nets)
+    common = {"render_s": round(t1 - t0, 1), "train_s": round(time.perf_counter() - t1, 1), "mocap": str(root),
+              "training_takes": len(entries)}
+    meta = net.meta | common
     save_appearance(out, replace(net, meta=meta))
     return meta
 
@@ -260,12 +280,16 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
     for name in ("jobs", "epochs", "takes"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
-    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs)
-    val = ("validation RMS x / y / z " + " / ".join(f"{100 * meta[k]:.1f}" for k in ("val_rms_x", "val_rms_y",
-                                                                                     "val_rms_z"))
-           + " % of the height" if "val_rms_z" in meta else "no validation takes")
-    print(f"appearance network: {meta['samples']} training views of {meta['training_takes']} takes, {val}; "
-          f"rendering {meta['render_s']:.0f} s, training {meta['train_s']:.0f} s -> {out}")
+    if args.members is not None and args.members < 1:
+        raise ValueError(f"--members must be >= 1, got {args.members}")
+    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members)
+    for k, m in enumerate(meta.get("members") or [meta]):
+        val = ("validation RMS x / y / z " + " / ".join(f"{100 * m[k]:.1f}" for k in ("val_rms_x", "val_rms_y",
+                                                                                      "val_rms_z"))
+               + " % of the height" if "val_rms_z" in m else "no validation takes")
+        print(f"appearance network {k + 1}: {m['samples']} training views, {val}")
+    print(f"{meta['training_takes']} training takes; rendering {meta['render_s']:.0f} s, training "
+          f"{meta['train_s']:.0f} s -> {out}")
     return 0
 
 
@@ -370,6 +394,8 @@ def _config(args: argparse.Namespace) -> Any:
         cfg = replace(cfg, refine=None)
     if getattr(args, "no_proportions", False):
         cfg = replace(cfg, proportions=None)
+    if getattr(args, "no_reading_filter", False):
+        cfg = replace(cfg, reading_filter=None)
     net = ensure_appearance(getattr(args, "appearance", None), train_if_missing=False)
     if net is not None:
         cfg = replace(cfg, appearance=net)

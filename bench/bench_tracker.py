@@ -161,9 +161,9 @@ def main() -> int:
         "xor_no_mirror": TrackerConfig(distance="xor", appearance_mirror=False),
         # the selected model's bone proportions kept (before session 25's proportions from the cue)
         "xor_no_proportions": TrackerConfig(distance="xor", proportions=None),
-        # the refinement toward each frame's raw reading, not the Kalman-filtered one (before session 26)
+        # the refinement toward each frame's raw reading, not the Kalman-filtered one (as in session 25)
         "xor_no_reading_filter": TrackerConfig(distance="xor", reading_filter=None),
-        # the ensemble's first network alone (session 24's; before session 26)
+        # the ensemble's first network alone (session 24's), everything else as the default
         "xor_one_network": TrackerConfig(distance="xor"),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not

@@ -70,13 +70,21 @@ def test_restarts_at_the_reading_after_a_gap_or_when_time_does_not_advance(gap: 
     new, m, v = filter_reading(state, state.t + gap, mu, var, prm)
     assert np.array_equal(m, mu) and np.array_equal(v, var) and new.t == state.t + gap
     # another skeleton's shape restarts too
-    _, m3, _ = filter_reading(state, state.t + DT, np.zeros((3, 3)), np.ones((3, 3)), prm)
-    assert m3.shape == (3, 3)
+    s3, m3, v3 = filter_reading(state, state.t + DT, np.full((3, 3), 0.2), np.ones((3, 3)), prm)
+    assert m3.shape == (3, 3) and np.all(m3 == 0.2) and np.all(v3 == 1.0) and s3.x.shape == (3, 3)
 
 
 def test_the_filter_returns_new_arrays_and_leaves_its_input_alone() -> None:
     mu = np.zeros((2, 1, 3))
     var = np.full((2, 1, 3), 1e-2)
-    state, m, _ = filter_reading(None, 0.0, mu[0], var[0], ReadingFilterParams())
+    prm = ReadingFilterParams()
+    state, m, _ = filter_reading(None, 0.0, mu[0], var[0], prm)
     m[:] = 5.0
     assert np.all(state.x == 0.0) and np.all(mu == 0.0)
+    mu[1] = 0.1
+    state2, m2, v2 = filter_reading(state, DT, mu[1], var[1], prm)  # the update path
+    assert 0.0 < m2[0, 0] < 0.1
+    m2[:] = 5.0
+    v2[:] = 5.0
+    assert np.all(state2.x < 0.1) and np.all(state2.pxx < 1e-2) and np.all(mu[1] == 0.1)
+    assert np.all(state.x == 0.0)  # the old state is not changed by the step

@@ -150,13 +150,14 @@ def test_eval_prints_the_json_contract(small_db, weak_appearance_net) -> None:  
                        cwd=REPO, capture_output=True, text=True, timeout=180)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    for key in ("mpjpe_cm", "root_error_cm", "mpjpe_2d_px", "frames_within_10cm", "reacquire_s_max", "fps",
-                "ms_per_frame", "distance_evals_per_level", "templates", "estimator", "distance", "body_selected",
-                "frames"):
+    for key in ("mpjpe_cm", "root_error_cm", "mpjpe_2d_px", "frames_within_10cm", "accel_error_cm",
+                "reacquire_s_max", "fps", "ms_per_frame", "distance_evals_per_level", "templates", "estimator",
+                "distance", "body_selected", "frames"):
         assert key in out
     assert out["frames"] == 40 and out["estimator"] == "tree" and out["appearance_cue"] is True
     assert set(out["ms_per_frame"]) == {"preprocess", "estimate", "total"}
     assert out["mpjpe_cm"] is not None and 0 < out["mpjpe_cm"] < 100
+    assert out["accel_error_cm"] is not None and 0 <= out["accel_error_cm"] < 20
     assert len(out["distance_evals_per_level"]) == 3
     # steady-state timing starts after the frame that ends initialisation (which may score bodies)
     assert out["steady_frames"] == out["tracked_frames"] - TrackerConfig().init_frames

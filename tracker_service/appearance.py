@@ -108,8 +108,12 @@ class AppearanceNet:
     size : int
         Input side ``S`` (pixels).
     layers : tuple of Layer
+        The (first) network.
     meta : dict
-        Training information (takes, samples, epochs, validation error).
+        Training information (takes, samples, epochs, validation error); for an ensemble
+        ``meta["members"]`` holds each network's.
+    members : tuple of tuple of Layer
+        The ensemble's other networks (empty: one network).
     """
 
     size: int

@@ -168,7 +168,8 @@ def _render_job(job: tuple[str, int, int, int, str]) -> str:
 
 
 def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[int, int]], size: int,
-                   cache: Path, jobs: int = 1, progress: Callable[[int, int], None] | None = None) -> Samples:
+                   cache: Path, jobs: int = 1, progress: Callable[[int, int], None] | None = None,
+                   load: bool = True) -> Samples:
     """Samples of every take and pass, rendered in ``jobs`` processes and cached.
 
     Parameters
@@ -182,6 +183,8 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
         Folder of the per-take files (``<seed_base>_<every>_<size>/<row>.npz``).
     jobs : int
     progress : callable(done, total), optional
+    load : bool
+        False: only render what the cache lacks and return no samples (an empty ``Samples``).
 
     Returns
     -------
@@ -213,6 +216,9 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
                 done += 1
                 if progress is not None:
                     progress(done, len(files))
+    if not load:
+        return Samples(np.zeros((0, size, size, 3), np.uint8), np.zeros((0, size, size), bool),
+                       np.zeros((0, N_JOINTS, 3), np.float32))
     crops, masks, joints, takes = [], [], [], []
     for row, f in files:
         try:

@@ -86,7 +86,9 @@ def _stats(v: list[float]) -> dict[str, float]:
 def acceleration_error(frame: NDArray[np.int64], est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
     """Mean joint acceleration error (metres per frame squared): the jitter of the published pose.
 
-    Over every three consecutive frames ``i - 1, i, i + 1`` that were all tracked, the second
+    Over every three consecutive frames ``i - 1, i, i + 1`` that were all tracked steadily (the
+    caller leaves out initialisation, forced losses until the track is back, re-initialisations and
+    the frame a new skeleton is published, whose jumps are not jitter), the second
     difference of the estimated root-relative joints minus that of the true ones, its norm averaged
     over the joints and the triples (the "Accel" error of temporal human-pose papers). A pose that
     trembles from frame to frame scores high even when its mean error is low.
@@ -192,7 +194,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             cfg = replace(cfg, body_candidates=(), body=given_body(given))
         state: TrackerState = new_state(loaded.body)
         errs, root_errs, errs2d, tracked = [], [], [], 0
-        acc_i: list[int] = []  # frame number, estimated and true root-relative joints of the tracked frames
+        acc_i: list[int] = []  # frame number, estimated and true root-relative joints of steady frames
         acc_e: list[NDArray[np.float64]] = []
         acc_t: list[NDArray[np.float64]] = []
         present = 0
@@ -220,9 +222,11 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             jt, je = fr.truth.joints, res.joints
             e = float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean())
             errs.append(e)
-            acc_i.append(i)
-            acc_e.append(je - je[0])
-            acc_t.append(jt - jt[0])
+            if (was_tracking and res.phase == "tracking" and lost_at is None and not res.reinitialised
+                    and not res.body_changed):  # jitter of steady tracking: no loss, recovery or new skeleton
+                acc_i.append(i)
+                acc_e.append(je - je[0])
+                acc_t.append(jt - jt[0])
             root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
             errs2d.append(float(np.linalg.norm(loaded.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
             if was_tracking and res.phase == "tracking":  # steady state; initialisation (body selection) apart

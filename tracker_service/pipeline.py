@@ -101,8 +101,9 @@ class TrackerConfig:
         the person's colour image weighs the leaves in the filter (``FilterParams.appearance_weight``);
         None: off.
     appearance_mirror : bool
-        Read the person's crop flipped left-right too and average both readings
-        (:func:`tracker_service.appearance.predict_joints`; one batch of two, ~0.8 ms more a frame).
+        Read the person's crop flipped left-right too and pool both readings
+        (:func:`tracker_service.appearance.predict_joints`; one batch of two per network of the
+        ensemble: it doubles the networks' cost, ~0.8 ms a frame per network).
     refine : RefineParams or None
         With the appearance cue: the published pose's joints are turned toward the network's
         reading, fused with the filter's pose by their variances (:mod:`tracker_service.pose_refinement`,
@@ -117,7 +118,8 @@ class TrackerConfig:
     reading_filter : ReadingFilterParams or None
         With the refinement: the network's readings are filtered over time by a constant-velocity
         Kalman filter (:mod:`tracker_service.reading_filter`) before the published pose is refined
-        toward them; None: each frame's raw reading.
+        toward them (restarted with every tracking session; kept through a re-initialisation);
+        None: each frame's raw reading.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.smoothing`); None: the raw
         per-frame estimate.
@@ -300,9 +302,10 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         if not _near_centre(mask, config.start_radius):
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
         state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={},
-                        statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False)
+                        statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
+                        reading=None)
     if not mask.any():  # the person left: wait for them to come back to the centre
-        state = replace(state, phase="waiting", filter=initial_state())
+        state = replace(state, phase="waiting", filter=initial_state(), reading=None)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     feats = preprocess(mask, config.distance, config.alpha, config.beta)
     t2 = time.perf_counter()
@@ -410,8 +413,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             body, base_body, body_changed, proportions_set, readings = adapt_body(base, ratio), base, True, True, ()
             log.info("body %s: bone proportions from the appearance cue: %s", body.name, describe(ratio) or "unchanged")
     reading = state.reading
-    if phase != "tracking" or est.reinitialised or restarted:
-        reading = None  # a new track: the readings' history belongs to the old one
+    if phase != "tracking":
+        reading = None  # a new person or session: the readings' history belongs to the old one
+    # (a re-initialisation or a new body size keeps it: the network reads the image, not the filter)
     elif seen is not None and config.reading_filter is not None and config.refine is not None:
         reading, *filtered = filter_reading(reading, clock, seen[0], seen[1], config.reading_filter)
         seen = (filtered[0], filtered[1])

@@ -208,7 +208,12 @@ def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
         return None
     p = Path(spec) if spec else default_appearance_path()
     if spec or p.exists():
-        return load_appearance(p)
+        net = load_appearance(p)
+        if not net.members:
+            log.warning("the appearance network %s is one network; the tracker's defaults are tuned for the "
+                        "ensemble of two that mocap-tracker train-appearance now makes (docs/TRACKER.md, "
+                        "session 26)", p)
+        return net
     if not train_if_missing:
         log.warning("no appearance network at %s: the appearance cue is off (train it once with: "
                     "mocap-tracker train-appearance)", p)
@@ -253,7 +258,7 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
             bar.n = done
             bar.refresh()
 
-        render_samples(entries, every_pass, configs[0].size, out.parent / "data", jobs, rendered)
+        render_samples(entries, every_pass, configs[0].size, out.parent / "data", jobs, rendered, load=False)
     t1 = time.perf_counter()
     nets = []
     for k, cfg in enumerate(configs):
@@ -283,11 +288,11 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
     if args.members is not None and args.members < 1:
         raise ValueError(f"--members must be >= 1, got {args.members}")
     meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members)
-    for k, m in enumerate(meta.get("members") or [meta]):
-        val = ("validation RMS x / y / z " + " / ".join(f"{100 * m[k]:.1f}" for k in ("val_rms_x", "val_rms_y",
+    for i, m in enumerate(meta.get("members") or [meta]):
+        val = ("validation RMS x / y / z " + " / ".join(f"{100 * m[c]:.1f}" for c in ("val_rms_x", "val_rms_y",
                                                                                       "val_rms_z"))
                + " % of the height" if "val_rms_z" in m else "no validation takes")
-        print(f"appearance network {k + 1}: {m['samples']} training views, {val}")
+        print(f"appearance network {i + 1}: {m['samples']} training views, {val}")
     print(f"{meta['training_takes']} training takes; rendering {meta['render_s']:.0f} s, training "
           f"{meta['train_s']:.0f} s -> {out}")
     return 0

@@ -42,8 +42,9 @@ class OneEuroParams:
         lag cost more than the jitter it removed. Session 26's defaults (5 Hz, 1.5 for both), with
         the network's readings Kalman-filtered before the refinement
         (:mod:`tracker_service.reading_filter`) and an ensemble of two networks, keep the published
-        pose's acceleration error where session 25 had it (1.40 vs 1.41 cm per frame², 17
-        held-out takes, seed 11) and lower its error (docs/TRACKER.md, session 26).
+        pose's acceleration error where session 25 had it (1.29 vs 1.28 cm per frame² on 17
+        held-out takes of seed 11, 1.22 vs 1.24 on seed 7) and lower its error by 0.4-0.5 cm
+        (docs/TRACKER.md, session 26).
     d_cutoff : float
         Cut-off (Hz) of the speed estimate.
     max_gap_s : float

@@ -259,8 +259,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
     reacq = reacquisition_times(np.asarray(err_t), e_arr, losses, options.fps)
     lvl = np.asarray(evals, dtype=np.float64) if evals else np.zeros((0, 3))
     total_ms = float(np.mean(t_tot)) if t_tot else float("nan")
-    accel = (acceleration_error(np.asarray(acc_i, np.int64), np.asarray(acc_e), np.asarray(acc_t)) if acc_i
-             else float("nan"))
+    accel = acceleration_error(np.asarray(acc_i, np.int64), np.asarray(acc_e), np.asarray(acc_t))
     return {
         "motion": motion.name,
         "frames": int(present),

@@ -413,9 +413,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             body, base_body, body_changed, proportions_set, readings = adapt_body(base, ratio), base, True, True, ()
             log.info("body %s: bone proportions from the appearance cue: %s", body.name, describe(ratio) or "unchanged")
     reading = state.reading
-    if phase != "tracking":
+    if phase != "tracking":  # (a re-initialisation or a new body size keeps it: the network reads the image)
         reading = None  # a new person or session: the readings' history belongs to the old one
-    # (a re-initialisation or a new body size keeps it: the network reads the image, not the filter)
     elif seen is not None and config.reading_filter is not None and config.refine is not None:
         reading, *filtered = filter_reading(reading, clock, seen[0], seen[1], config.reading_filter)
         seen = (filtered[0], filtered[1])

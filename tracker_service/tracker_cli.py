@@ -266,7 +266,7 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
         with tqdm(total=cfg.epochs, desc=f"train network {k + 1}/{n} on {len(samples)} views", unit="epoch") as bar:
             def trained(epoch: int, epochs: int, fig: dict[str, float]) -> None:
                 bar.update(1)
-                bar.set_postfix({k: round(v, 4) for k, v in fig.items() if k != "seconds"})
+                bar.set_postfix({name: round(v, 4) for name, v in fig.items() if name != "seconds"})
 
             nets.append(train_network(samples, cfg, threads=max(jobs, 1), progress=trained))
         del samples

@@ -339,6 +339,20 @@ def test_rendered_training_views(tmp_path: Path) -> None:
     assert np.all(a.take == 7) and (tmp_path / "100_25_32" / "007.npz").is_file()
 
 
+def test_gesture_scripts_join_the_training_takes(tmp_path: Path) -> None:
+    """The scripts are numbered after the recordings and cached by name, not by number."""
+    from tracker_service.appearance_train import SCRIPT_ROW_BASE, render_samples, training_takes
+    from tracker_service.tracker_cli import DEFAULT_SCRIPT
+
+    takes = training_takes([(3, "a.bvh"), (8, "b.bvh")], [DEFAULT_SCRIPT])
+    assert takes == [(3, "a.bvh"), (8, "b.bvh"), (SCRIPT_ROW_BASE, str(DEFAULT_SCRIPT))]
+    with pytest.raises(ValueError, match="below"):
+        training_takes([(SCRIPT_ROW_BASE, "c.bvh")], [DEFAULT_SCRIPT])
+    s = render_samples(takes[2:], [(100, 25)], 32, tmp_path, 1)
+    assert len(s) >= 2 and np.all(s.take == SCRIPT_ROW_BASE)
+    assert [p.name for p in (tmp_path / "100_25_32").iterdir()] == ["script_protocol_crouch.npz"]
+
+
 def test_the_cue_weighs_the_filter_towards_what_the_network_sees(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     """A network that always sees one pose pulls the filter's support towards it; weight 0 changes
     nothing at all."""

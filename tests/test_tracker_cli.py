@@ -97,25 +97,37 @@ def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> Non
 
 @pytest.mark.slow
 def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
-    """``mocap-tracker train-appearance`` on two takes, one short pass per network, one epoch: an
-    ensemble of two networks in one file the tracker loads, and its rendered views cached beside it."""
+    """``mocap-tracker train-appearance`` on two takes and a folder of one gesture script, one short
+    pass and one posture-varied pass per network, one epoch: an ensemble of two networks in one file
+    the tracker loads, and its rendered views cached beside it (the script's by name)."""
+    import shutil
     import subprocess
     import sys
 
     from tracker_service.appearance import load_appearance
 
     out = tmp_path / "app" / "net.npz"
+    scripts = tmp_path / "gestures" / "scripts"
+    scripts.mkdir(parents=True)
+    shutil.copy(REPO / "game_client" / "scripts" / "crouch.toml", scripts)
+    (scripts / "labels.toml").write_text("title = 'not a script'\n")
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--takes", "2", "--passes",
-                        "7:60;8:60", "--epochs", "1", "--jobs", "1", "--out", str(out)],
+                        "7:60;8:60", "--posture-passes", "9:60;10:60", "--epochs", "1", "--jobs", "1", "--scripts",
+                        str(scripts), "--out", str(out)],
                        cwd=REPO, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    assert "appearance network 2:" in r.stdout and out.is_file()
+    assert "appearance network 2:" in r.stdout and "1 gesture scripts" in r.stdout and out.is_file()
     net = load_appearance(out)
     assert net.size == 64 and net.meta["training_takes"] == 2 and len(net.networks) == 2
+    assert [Path(p).name for p in net.meta["scripts"]] == ["crouch.toml"]
     assert [m["config"]["passes"] for m in net.meta["members"]] == [[[7, 60]], [[8, 60]]]
+    assert [m["config"]["posture_passes"] for m in net.meta["members"]] == [[[9, 60]], [[10, 60]]]
     assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
     for folder in ("7_60_64", "8_60_64"):
-        assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 2
+        names = sorted(p.name for p in (out.parent / "data" / folder).glob("*.npz"))
+        assert len(names) == 3 and names[-1] == "script_gestures_crouch.npz"
+    for folder in ("9_60_64_p50t25k70", "10_60_64_p50t25k70"):  # the posture-varied passes, cached apart
+        assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--members", "3", "--out",
                         str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "--passes" in r.stderr and "Traceback" not in r.stderr

@@ -39,8 +39,10 @@ from numpy.typing import NDArray
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 
 from .appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
+from .posture_variation import PostureParams, vary_posture
 
-__all__ = ["MEMBER_PASSES", "Samples", "TrainConfig", "export_layers", "render_samples", "render_take", "train_network"]
+__all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "SCRIPT_ROW_BASE", "Samples", "TrainConfig", "concat_samples",
+           "export_layers", "render_samples", "render_take", "train_network", "training_takes"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +60,9 @@ class TrainConfig:
     passes : tuple of (int, int)
         ``(seed_base, every)`` per pass over the training takes: each pass renders every take on
         another person, every ``every``-th frame.
+    posture_passes : tuple of (int, int)
+        More passes, their poses varied by ``posture`` (:mod:`tracker_service.posture_variation`).
+    posture : PostureParams
     epochs, batch : int
     lr, weight_decay : float
         AdamW with a one-cycle learning-rate schedule peaking at ``lr``.
@@ -72,6 +77,8 @@ class TrainConfig:
     size: int = 64
     width: int = 16
     passes: tuple[tuple[int, int], ...] = ((1000, 3), (2000, 2), (3000, 2), (4000, 2))
+    posture_passes: tuple[tuple[int, int], ...] = ()
+    posture: PostureParams = field(default_factory=PostureParams)
     epochs: int = 15
     batch: int = 64
     lr: float = 2e-3
@@ -87,6 +94,8 @@ MEMBER_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (
     ((1000, 3), (2000, 2), (3000, 2), (4000, 2)),
     ((5000, 2), (6000, 2), (2000, 2), (3000, 2)),
 )
+#: Each network's passes with varied postures (session 27; :mod:`tracker_service.posture_variation`).
+MEMBER_POSTURE_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((7000, 3),), ((8000, 3),))
 
 
 @dataclass(frozen=True)
@@ -112,7 +121,8 @@ class Samples:
         return len(self.crops)
 
 
-def render_take(path: str | Path, seed: int, every: int, size: int) -> Samples:
+def render_take(path: str | Path, seed: int, every: int, size: int, posture: PostureParams | None = None
+                ) -> Samples:
     """Samples of one recording or gesture script played on the person ``seed`` chooses.
 
     Parameters
@@ -123,17 +133,25 @@ def render_take(path: str | Path, seed: int, every: int, size: int) -> Samples:
         Every this many-th frame (the first one drawn from ``seed``).
     size : int
         Crop side.
+    posture : PostureParams, optional
+        Vary the poses first (:func:`tracker_service.posture_variation.vary_posture`, drawn from
+        ``seed`` too).
 
     Returns
     -------
     Samples
         ``take`` left empty (the caller knows it).
     """
+    from dataclasses import replace
+
     from protocol.motion import load_motion
 
     from .scene import SceneConfig, SyntheticScene
 
     motion = load_motion(path, fps=30.0)
+    if posture is not None:
+        motion = replace(motion, poses=vary_posture(motion.poses, motion.body, np.random.default_rng([seed, 1]),
+                                                    posture))
     travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
     cfg = SceneConfig(fps=30.0, in_place=bool(travel > 2.0))  # as evaluate_motion plays it
     crops, masks, joints = [], [], []
@@ -157,49 +175,90 @@ def render_take(path: str | Path, seed: int, every: int, size: int) -> Samples:
     return Samples(np.asarray(crops), np.asarray(masks), np.asarray(joints, np.float32))
 
 
-def _render_job(job: tuple[str, int, int, int, str]) -> str:
-    path, seed, every, size, out = job
+def _render_job(job: tuple[str, int, int, int, str, PostureParams | None]) -> str:
+    path, seed, every, size, out, posture = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    s = render_take(path, seed, every, size)
+    s = render_take(path, seed, every, size, posture)
     tmp = out + ".partial.npz"
     np.savez_compressed(tmp, crops=s.crops, masks=s.masks, joints=s.joints)
     os.replace(tmp, out)
     return out
 
 
+#: Take number of the first gesture script among the training takes (the recordings keep their
+#: INDEX.tsv rows, below it): it seeds the script's people and names its cached views.
+SCRIPT_ROW_BASE = 900
+
+
+def training_takes(recordings: Sequence[tuple[int, str]], scripts: Sequence[str | Path] = ()
+                   ) -> list[tuple[int, str]]:
+    """The network's training takes: the recordings by INDEX.tsv row, then the gesture scripts
+    numbered from :data:`SCRIPT_ROW_BASE` (the motions the database has and the recordings lack,
+    such as the game's crouch and side-steps).
+
+    Parameters
+    ----------
+    recordings : sequence of (int, str)
+        ``(INDEX.tsv row, path)``; rows must be below :data:`SCRIPT_ROW_BASE`.
+    scripts : sequence of str or Path
+        Gesture script files.
+
+    Returns
+    -------
+    list of (int, str)
+    """
+    if any(row >= SCRIPT_ROW_BASE for row, _ in recordings):
+        raise ValueError(f"recording rows must be below {SCRIPT_ROW_BASE} (the gesture scripts' numbers)")
+    return [*recordings, *((SCRIPT_ROW_BASE + k, str(p)) for k, p in enumerate(scripts))]
+
+
+def _cache_name(row: int, path: str) -> str:
+    """A recording's cached views are named by its INDEX.tsv row, a gesture script's by its file
+    (its number depends on which scripts are used)."""
+    if row < SCRIPT_ROW_BASE:
+        return f"{row:03d}.npz"
+    p = Path(path)
+    return f"script_{p.parent.parent.name}_{p.stem}.npz"
+
+
 def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[int, int]], size: int,
                    cache: Path, jobs: int = 1, progress: Callable[[int, int], None] | None = None,
-                   load: bool = True) -> Samples:
+                   load: bool = True, posture: PostureParams | None = None) -> Samples:
     """Samples of every take and pass, rendered in ``jobs`` processes and cached.
 
     Parameters
     ----------
     entries : sequence of (int, str)
-        ``(INDEX.tsv row, path)`` of the training takes.
+        ``(take number, path)`` of the training takes (:func:`training_takes`).
     passes : sequence of (int, int)
         ``(seed_base, every)``.
     size : int
     cache : Path
-        Folder of the per-take files (``<seed_base>_<every>_<size>/<row>.npz``).
+        Folder of the per-take files (``<seed_base>_<every>_<size>/<row>.npz``, a script's
+        ``script_<package>_<name>.npz``).
     jobs : int
     progress : callable(done, total), optional
     load : bool
         False: only render what the cache lacks and return no samples (an empty ``Samples``).
+    posture : PostureParams, optional
+        Render the poses varied (:func:`render_take`); cached in folders named with the parameters
+        (``<seed_base>_<every>_<size>_p<share %>t<trunk>k<knee>``).
 
     Returns
     -------
     Samples
     """
-    todo: list[tuple[str, int, int, int, str]] = []
+    todo: list[tuple[str, int, int, int, str, PostureParams | None]] = []
     files: list[tuple[int, Path]] = []
+    tag = "" if posture is None else f"_p{round(100 * posture.share)}t{posture.trunk_deg:g}k{posture.knee_deg:g}"
     for base, every in passes:
-        folder = cache / f"{base}_{every}_{size}"
+        folder = cache / f"{base}_{every}_{size}{tag}"
         folder.mkdir(parents=True, exist_ok=True)
         for row, path in entries:
-            f = folder / f"{row:03d}.npz"
+            f = folder / _cache_name(row, path)
             files.append((row, f))
             if not f.is_file():
-                todo.append((str(path), base + row, every, size, str(f)))
+                todo.append((str(path), base + row, every, size, str(f), posture))
     done = len(files) - len(todo)
     if progress is not None:
         progress(done, len(files))
@@ -232,6 +291,14 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
         takes.append(np.full(len(c), row, np.int64))
     return Samples(np.concatenate(crops), np.concatenate(masks), np.concatenate(joints).astype(np.float32),
                    np.concatenate(takes))
+
+
+def concat_samples(parts: Sequence[Samples]) -> Samples:
+    """The samples of several :func:`render_samples` calls as one (at least one part)."""
+    if len(parts) == 1:
+        return parts[0]
+    return Samples(np.concatenate([p.crops for p in parts]), np.concatenate([p.masks for p in parts]),
+                   np.concatenate([p.joints for p in parts]), np.concatenate([p.take for p in parts]))
 
 
 def _torch() -> Any:

@@ -84,10 +84,19 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                     help="one pass per pair: every take on the person SEED+row chooses, every EVERY-th frame; "
                          "one list per network, separated by ';' (default: 1000:3,2000:2,3000:2,4000:2 for the "
                          "first, 5000:2,6000:2,2000:2,3000:2 for the second)")
+    ap.add_argument("--posture-passes", type=_passes, metavar="SEED:EVERY,...[;...]",
+                    help="more passes with the poses varied (stooped, knees bent: tracker_service/"
+                         "posture_variation.py), one list per network (default: 7000:3 for the first, 8000:3 "
+                         "for the second)")
+    ap.add_argument("--no-posture", action="store_true", help="no posture-varied passes")
     ap.add_argument("--members", type=int, metavar="N",
                     help="networks in the ensemble, each trained on its own passes with its own initial weights "
                          "(default: as many as --passes lists, else 2)")
     ap.add_argument("--takes", type=int, metavar="N", help="use only the first N training takes (quick builds)")
+    ap.add_argument("--scripts", metavar="DIR", action="append", default=None,
+                    help="also train on every gesture script (*.toml) in DIR (repeatable; default: the game's "
+                         "and protocol's bundled scripts, the motions build-db adds to the database)")
+    ap.add_argument("--no-scripts", action="store_true", help="recordings only")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
                     help="rendering processes (default: the CPUs)")
     ap.set_defaults(func=_cmd_train_appearance)
@@ -219,19 +228,31 @@ def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
                     "mocap-tracker train-appearance)", p)
         return None
     log.warning("no appearance network at %s; training it now (some minutes, cached for next time)", p)
-    _train_appearance(p, None, None, None, None, os.cpu_count() or 1)
+    _train_appearance(p, None, None, None, None, os.cpu_count() or 1, scripts=[str(d) for d in DEFAULT_SCRIPT_DIRS])
     return load_appearance(p)
 
 
 def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
                       passes: tuple[tuple[tuple[int, int], ...], ...] | None, takes: int | None, jobs: int,
-                      members: int | None = None) -> dict[str, Any]:
+                      members: int | None = None, scripts: Sequence[str] = (),
+                      posture_passes: tuple[tuple[tuple[int, int], ...], ...] | None = None) -> dict[str, Any]:
+    """Render the training views and train the ensemble (``scripts``: folders of gesture scripts
+    whose motions are trained on too; ``posture_passes``: each network's passes with varied
+    postures, None for the defaults, ``()`` for none)."""
     from dataclasses import replace as dc_replace
 
     from tqdm import tqdm
 
     from .appearance import ensemble, save_appearance
-    from .appearance_train import MEMBER_PASSES, TrainConfig, render_samples, train_network
+    from .appearance_train import (
+        MEMBER_PASSES,
+        MEMBER_POSTURE_PASSES,
+        TrainConfig,
+        concat_samples,
+        render_samples,
+        train_network,
+        training_takes,
+    )
     from .db_build import is_held_out
 
     n = members or (len(passes) if passes else len(MEMBER_PASSES))
@@ -245,10 +266,17 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
     from protocol.mocap_data import index_entries, mocap_root
 
     root = mocap_root()
-    entries = [(i, str(root / e.path)) for i, e in enumerate(index_entries()) if not is_held_out(i)]
+    recordings = [(i, str(root / e.path)) for i, e in enumerate(index_entries()) if not is_held_out(i)]
     if takes:
-        entries = entries[:takes]
-    configs = [dc_replace(TrainConfig(), passes=plan[k], seed=k, **({"epochs": epochs} if epochs else {}))
+        recordings = recordings[:takes]
+    script_files = _gesture_scripts(scripts)
+    entries = training_takes(recordings, script_files)
+    postures = MEMBER_POSTURE_PASSES if posture_passes is None else posture_passes
+    if postures and len(postures) != n:
+        raise ValueError(f"{n} network(s) need {n} posture pass list(s) separated by ';' in --posture-passes, "
+                         f"got {len(postures)}")
+    base = TrainConfig() if epochs is None else TrainConfig(epochs=epochs)
+    configs = [dc_replace(base, passes=plan[k], posture_passes=postures[k] if postures else (), seed=k)
                for k in range(n)]
     t0 = time.perf_counter()
     every_pass = tuple(dict.fromkeys(p for c in configs for p in c.passes))
@@ -259,10 +287,19 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
             bar.refresh()
 
         render_samples(entries, every_pass, configs[0].size, out.parent / "data", jobs, rendered, load=False)
+        every_posture = tuple(dict.fromkeys(p for c in configs for p in c.posture_passes))
+        if every_posture:
+            render_samples(entries, every_posture, configs[0].size, out.parent / "data", jobs, rendered, load=False,
+                           posture=configs[0].posture)
     t1 = time.perf_counter()
     nets = []
     for k, cfg in enumerate(configs):
-        samples = render_samples(entries, cfg.passes, cfg.size, out.parent / "data")  # cached: read only
+        parts = [render_samples(entries, cfg.passes, cfg.size, out.parent / "data")]  # cached: read only
+        if cfg.posture_passes:
+            parts.append(render_samples(entries, cfg.posture_passes, cfg.size, out.parent / "data",
+                                        posture=cfg.posture))
+        samples = concat_samples(parts)
+        del parts
         with tqdm(total=cfg.epochs, desc=f"train network {k + 1}/{n} on {len(samples)} views", unit="epoch") as bar:
             def trained(epoch: int, epochs: int, fig: dict[str, float]) -> None:
                 bar.update(1)
@@ -272,7 +309,7 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
         del samples
     net = nets[0] if n == 1 else ensemble(nets)
     common = {"render_s": round(t1 - t0, 1), "train_s": round(time.perf_counter() - t1, 1), "mocap": str(root),
-              "training_takes": len(entries)}
+              "training_takes": len(recordings), "scripts": [str(p) for p in script_files]}
     meta = net.meta | common
     save_appearance(out, replace(net, meta=meta))
     return meta
@@ -287,13 +324,18 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.members is not None and args.members < 1:
         raise ValueError(f"--members must be >= 1, got {args.members}")
-    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members)
+    dirs = [] if args.no_scripts else (args.scripts if args.scripts is not None
+                                       else [str(d) for d in DEFAULT_SCRIPT_DIRS])
+    postures = () if args.no_posture else args.posture_passes
+    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members, dirs,
+                             postures)
     for i, m in enumerate(meta.get("members") or [meta]):
         val = ("validation RMS x / y / z " + " / ".join(f"{100 * m[c]:.1f}" for c in ("val_rms_x", "val_rms_y",
                                                                                       "val_rms_z"))
                + " % of the height" if "val_rms_z" in m else "no validation takes")
         print(f"appearance network {i + 1}: {m['samples']} training views, {val}")
-    print(f"{meta['training_takes']} training takes; rendering {meta['render_s']:.0f} s, training "
+    print(f"{meta['training_takes']} training takes and {len(meta['scripts'])} gesture scripts; "
+          f"rendering {meta['render_s']:.0f} s, training "
           f"{meta['train_s']:.0f} s -> {out}")
     return 0
 
@@ -313,7 +355,7 @@ def _gesture_scripts(dirs: Sequence[str]) -> list[Path]:
         if "key" in doc:
             out.append(p)
         else:
-            print(f"build-db: {p} has no [[key]] tables: not a gesture script, skipped", file=sys.stderr)
+            print(f"{p} has no [[key]] tables: not a gesture script, skipped", file=sys.stderr)
     return out
 
 

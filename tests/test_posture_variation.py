@@ -1,0 +1,56 @@
+"""Posture variation of the network's training poses: stooped, knees bent, feet kept on the floor."""
+
+import numpy as np
+import pytest
+
+from protocol.kinematics import fk
+from protocol.skeleton import JOINT_INDEX, default_body, limit_violation_deg, standing_pose
+from tracker_service.posture_variation import PostureParams, vary_posture
+
+J = JOINT_INDEX
+
+
+def _poses(n: int) -> np.ndarray:
+    body = default_body()
+    p = np.tile(standing_pose(body), (n, 1))
+    p[:, 0] = np.linspace(-1.0, 1.0, n)  # walking across, facing +Z
+    return p
+
+
+def test_varied_frames_stoop_and_bend_the_knees_with_the_feet_on_the_floor() -> None:
+    body = default_body()
+    poses = _poses(40)
+    out = vary_posture(poses, body, np.random.default_rng(3), PostureParams(share=1.0))
+    a, b = fk(poses, body), fk(out, body)
+    lean_a = a[:, J["neck"], 2] - a[:, J["pelvis"], 2]
+    lean_b = b[:, J["neck"], 2] - b[:, J["pelvis"], 2]
+    assert np.all(lean_b >= lean_a - 1e-9) and np.mean(lean_b - lean_a) > 0.05  # the trunk leans forward
+    for side in "lr":  # the knee goes forward of the hip-ankle line, the pelvis drops
+        knee_fwd = b[:, J[f"{side}_knee"], 2] - 0.5 * (b[:, J[f"{side}_hip"], 2] + b[:, J[f"{side}_ankle"], 2])
+        assert np.all(knee_fwd >= -1e-9) and knee_fwd.max() > 0.1
+    assert np.all(out[:, 1] <= poses[:, 1] + 1e-9) and np.max(poses[:, 1] - out[:, 1]) > 0.06
+    feet = [J[n] for n in ("l_ankle", "r_ankle", "l_toe", "r_toe")]
+    assert np.allclose(b[:, feet, 1].min(axis=1), a[:, feet, 1].min(axis=1))
+    assert np.allclose(out[:, [0, 2, 3, 4, 5]], poses[:, [0, 2, 3, 4, 5]])  # root place and orientation kept
+    assert limit_violation_deg(out).max() < 1e-6
+
+
+def test_share_and_seed() -> None:
+    body = default_body()
+    poses = _poses(400)
+    assert np.array_equal(vary_posture(poses, body, np.random.default_rng(0), PostureParams(share=0.0)), poses)
+    out = vary_posture(poses, body, np.random.default_rng(0), PostureParams(share=0.5))
+    changed = np.any(np.abs(out - poses) > 1e-12, axis=1)
+    assert 0.4 < changed.mean() < 0.6
+    again = vary_posture(poses, body, np.random.default_rng(0), PostureParams(share=0.5))
+    assert np.array_equal(out, again)
+    assert np.array_equal(poses, _poses(400))  # the input is not modified
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="share"):
+        PostureParams(share=1.5)
+    with pytest.raises(ValueError, match="knee_deg"):
+        PostureParams(knee_deg=-1.0)
+    with pytest.raises(ValueError, match="shape"):
+        vary_posture(np.zeros((3, 7)), default_body(), np.random.default_rng(0))

@@ -3,7 +3,8 @@
 Usage::
 
     .venv/bin/python bench/bench_game_tracked.py [--db PATH] [--scripts a,b,...] [--variants N]
-                                                 [--lead-in S] [--seed S] [--cache DIR] [--json]
+                                                 [--lead-in S] [--seed S] [--appearance PATH|off]
+                                                 [--cache DIR] [--json]
 
 For every bundled single-gesture script (positives and near-misses; ``--rounds`` adds the
 whole-round scripts) and a few variants of it (speed x seed; the seed picks the synthetic person,
@@ -15,7 +16,12 @@ so it varies body size and shape, outfit, room and lighting), the motion is
    sensor noise, 12 empty-room frames first, the person facing the camera),
 3. tracked frame by frame from the pixels with :func:`tracker_service.pipeline.process_frame` (the
    loop of :func:`tracker_service.evaluate.evaluate_motion`, without forced losses; settings as
-   ``mocap-tracker eval``: xor distance, occlusion dynamics, body model chosen automatically),
+   ``mocap-tracker eval``: xor distance, occlusion dynamics, body model chosen automatically, and the
+   appearance cue when its network file exists, as ``mocap-tracker run`` does — since session 27;
+   ``--appearance off`` is the tracker without it, which is what this benchmark measured before.
+   The game's scripts are in the default database and, since session 27, in the network's
+   training data too, played by other synthetic people: the paper built its game database from
+   the game's own motions),
 4. fed to a fresh :class:`game_client.gestures.GestureRecognizer` with the tracker's joints,
    visibility and confidence (frames without a pose are skipped, as the game client would).
 
@@ -53,11 +59,12 @@ from game_client.gestures import GestureEvent, GestureRecognizer, RecognizerConf
 from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
 from protocol.motion import Motion
 from protocol.skeleton import N_JOINTS, N_PARTS
+from tracker_service.appearance import AppearanceNet
 from tracker_service.body_models import BODY_MODELS
 from tracker_service.pipeline import TrackerConfig, new_state, process_frame
 from tracker_service.scene import SceneConfig, SyntheticScene
 from tracker_service.template_db import LoadedDatabase
-from tracker_service.tracker_cli import ensure_db
+from tracker_service.tracker_cli import ensure_appearance, ensure_db
 from tracker_service.tree_filter import FilterParams
 
 #: Speeds of the variants, cycled (1.0 = as authored).
@@ -158,6 +165,19 @@ def _source_hash() -> str:
     return h.hexdigest()
 
 
+def _net_digest(net: AppearanceNet | None) -> str | None:
+    """A short digest of the appearance network's weights (None without the cue): part of the
+    cache key and of the report."""
+    if net is None:
+        return None
+    h = hashlib.sha256()
+    for layers in net.networks:
+        for layer in layers:
+            h.update(np.ascontiguousarray(layer.matrix).tobytes())
+            h.update(np.ascontiguousarray(layer.bias).tobytes())
+    return h.hexdigest()[:16]
+
+
 def cached_track(cache: Path | None, key: dict[str, Any], m: Motion, loaded: LoadedDatabase, cfg: TrackerConfig,
                  seed: int) -> tuple[dict[str, Any], bool]:
     """:func:`track_sequence`, through the cache folder ``cache`` if given. Returns the sequence and
@@ -209,6 +229,9 @@ def main() -> int:
                          "as `mocap-tracker run --max-heading 35`; 0: any heading)")
     ap.add_argument("--pose", choices=("mean", "map"), default="mean",
                     help="the tracker's published pose, as `mocap-tracker run --pose` (default mean)")
+    ap.add_argument("--appearance", metavar="PATH|off",
+                    help="the appearance cue's network (default: out/appearance/net.npz when it exists, as "
+                         "`mocap-tracker run`; off: the tracker without the cue)")
     ap.add_argument("--cache", metavar="DIR", help="reuse tracked sequences stored in DIR and store new ones there "
                                                    "(e.g. out/game_tracked_cache; default: track everything afresh)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
@@ -217,7 +240,7 @@ def main() -> int:
     loaded = ensure_db(args.db)
     cfg = TrackerConfig(distance="xor", occlusion=True, body_candidates=tuple(b.name for b in BODY_MODELS),
                         filter=FilterParams(max_heading=math.radians(args.max_heading) if args.max_heading else None),
-                        use_mean_pose=args.pose == "mean")
+                        use_mean_pose=args.pose == "mean", appearance=ensure_appearance(args.appearance, False))
     labels = load_labels()
     names = (args.scripts.split(",") if args.scripts
              else [n for n in labels if not n.startswith("round_")])
@@ -229,7 +252,8 @@ def main() -> int:
     cache = Path(args.cache) if args.cache else None
     base_key = {"lead_in": args.lead_in, "max_heading": args.max_heading, "pose": args.pose, "fps": FPS,
                 "db": str(loaded.path), "templates": int(loaded.db.n_leaves),
-                "source": _source_hash() if cache else None}
+                "source": _source_hash() if cache else None,
+                "appearance": _net_digest(cfg.appearance)}
     score_tracked, score_truth = Score(), Score()
     rows = []
     reused = 0
@@ -260,7 +284,8 @@ def main() -> int:
                         "scripts": loaded.meta.get("scripts", []), "body": loaded.body.name},
            "tracker": {"distance": cfg.distance, "occlusion": cfg.occlusion, "body": "auto",
                        "max_heading_deg": args.max_heading or None, "skin": cfg.skin is not None,
-                       "smoothing": cfg.smoothing is not None, "pose": args.pose},
+                       "smoothing": cfg.smoothing is not None, "pose": args.pose,
+                       "appearance": base_key["appearance"]},
            "lead_in_s": args.lead_in, "fps": FPS, "sequences": len(rows), "seeds": sorted({r["seed"] for r in rows}),
            "cache": str(cache) if cache else None, "reused_from_cache": reused,
            "tracked": _fmt(score_tracked), "truth": _fmt(score_truth),

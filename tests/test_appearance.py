@@ -348,9 +348,25 @@ def test_gesture_scripts_join_the_training_takes(tmp_path: Path) -> None:
     assert takes == [(3, "a.bvh"), (8, "b.bvh"), (SCRIPT_ROW_BASE, str(DEFAULT_SCRIPT))]
     with pytest.raises(ValueError, match="below"):
         training_takes([(SCRIPT_ROW_BASE, "c.bvh")], [DEFAULT_SCRIPT])
+    with pytest.raises(ValueError, match="at most"):
+        training_takes([], [DEFAULT_SCRIPT] * (1000 - SCRIPT_ROW_BASE + 1))
     s = render_samples(takes[2:], [(100, 25)], 32, tmp_path, 1)
     assert len(s) >= 2 and np.all(s.take == SCRIPT_ROW_BASE)
-    assert [p.name for p in (tmp_path / "100_25_32").iterdir()] == ["script_protocol_crouch.npz"]
+    (name,) = [p.name for p in (tmp_path / "100_25_32").iterdir()]
+    assert name.startswith(f"script_crouch_{SCRIPT_ROW_BASE}_")
+    # the same name in another folder, or another number, is another file
+    from tracker_service.appearance_train import _cache_name
+    other = tmp_path / "elsewhere" / "crouch.toml"
+    names = {name, _cache_name(SCRIPT_ROW_BASE, str(other)), _cache_name(SCRIPT_ROW_BASE + 1, str(DEFAULT_SCRIPT))}
+    assert len(names) == 3
+
+
+def test_default_posture_passes_fit_any_ensemble_size() -> None:
+    from tracker_service.appearance_train import MEMBER_POSTURE_PASSES, member_posture_passes
+
+    assert member_posture_passes(1) == MEMBER_POSTURE_PASSES[:1]
+    assert member_posture_passes(2) == MEMBER_POSTURE_PASSES
+    assert member_posture_passes(3) == (*MEMBER_POSTURE_PASSES, ())
 
 
 def test_the_cue_weighs_the_filter_towards_what_the_network_sees(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]

@@ -54,3 +54,49 @@ def test_bad_arguments() -> None:
         PostureParams(knee_deg=-1.0)
     with pytest.raises(ValueError, match="shape"):
         vary_posture(np.zeros((3, 7)), default_body(), np.random.default_rng(0))
+
+
+def test_the_turns_are_about_the_parents_left_right_axis_of_any_recorded_pose() -> None:
+    """On recorded rotations that are not the identity, each turned joint's new local rotation is a
+    rotation about +X (the parent's left-right axis) times the recorded one, with the documented
+    signs and proportions; the joints not turned are left exactly as recorded."""
+    from protocol.rotations import rotvec_to_matrix
+    from protocol.skeleton import ROT_JOINTS
+
+    body = default_body()
+    rng = np.random.default_rng(5)
+    poses = _poses(30)
+    poses[:, 3:] += rng.uniform(-0.25, 0.25, poses[:, 3:].shape)  # twisted, abducted, turned root
+    out = vary_posture(poses, body, np.random.default_rng(9), PostureParams(share=1.0, trunk_deg=20.0, knee_deg=40.0))
+    r0 = rotvec_to_matrix(poses[:, 3:].reshape(len(poses), -1, 3))
+    r1 = rotvec_to_matrix(out[:, 3:].reshape(len(out), -1, 3))
+    turned = ("spine", "chest", "l_hip", "l_knee", "l_ankle", "r_hip", "r_knee", "r_ankle")
+
+    def angle_x(name: str) -> np.ndarray:
+        k = ROT_JOINTS.index(name)
+        d = r1[:, k] @ np.swapaxes(r0[:, k], 1, 2)  # the turn, applied before the recorded rotation
+        assert np.allclose(d[:, 0], [1.0, 0.0, 0.0], atol=1e-9) and np.allclose(d[:, :, 0], [1.0, 0.0, 0.0], atol=1e-9)
+        return np.arctan2(d[:, 2, 1], d[:, 1, 1])
+
+    spine, chest = angle_x("spine"), angle_x("chest")
+    assert np.all(spine >= 0) and np.allclose(spine * 0.4, chest * 0.6) and spine.max() <= np.radians(12.0) + 1e-9
+    for side in "lr":
+        knee, hip, ankle = angle_x(f"{side}_knee"), angle_x(f"{side}_hip"), angle_x(f"{side}_ankle")
+        assert np.all(knee >= 0) and np.allclose(hip, -0.5 * knee) and np.allclose(ankle, -0.5 * knee)
+    full = np.maximum(angle_x("l_knee"), angle_x("r_knee"))
+    assert np.all(np.minimum(angle_x("l_knee"), angle_x("r_knee")) >= 0.6 * full - 1e-9)
+    for k, name in enumerate(ROT_JOINTS[1:], start=1):
+        if name not in turned:
+            assert np.array_equal(out[:, 3 + 3 * k: 6 + 3 * k], poses[:, 3 + 3 * k: 6 + 3 * k]), name
+
+
+def test_a_knee_bent_near_its_limit_is_clamped() -> None:
+    from protocol.skeleton import ROT_JOINTS
+
+    body = default_body()
+    poses = _poses(20)
+    k = ROT_JOINTS.index("l_knee")
+    poses[:, 3 + 3 * k] = np.radians(160.0)  # the limit is 170 degrees
+    out = vary_posture(poses, body, np.random.default_rng(1), PostureParams(share=1.0, knee_deg=70.0))
+    assert limit_violation_deg(out).max() < 1e-6
+    assert np.degrees(out[:, 3 + 3 * k]).max() == pytest.approx(170.0)

@@ -125,12 +125,20 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
     for folder in ("7_60_64", "8_60_64"):
         names = sorted(p.name for p in (out.parent / "data" / folder).glob("*.npz"))
-        assert len(names) == 3 and names[-1] == "script_gestures_crouch.npz"
-    for folder in ("9_60_64_p50t25k70", "10_60_64_p50t25k70"):  # the posture-varied passes, cached apart
+        assert len(names) == 3 and names[-1].startswith("script_crouch_900_")
+    for folder in ("9_60_64_posture1_s0.5t25k70", "10_60_64_posture1_s0.5t25k70"):  # posture passes, cached apart
         assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--members", "3", "--out",
                         str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "--passes" in r.stderr and "Traceback" not in r.stderr
+    for flags in (["--no-posture", "--posture-passes", "9:60"], ["--no-scripts", "--scripts", str(scripts)]):
+        r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", *flags, "--out",
+                            str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "not allowed with" in r.stderr  # contradictory flags are refused
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:60",
+                        "--posture-passes", "9:60;10:60", "--out", str(tmp_path / "never.npz")],
+                       cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "posture pass list" in r.stderr and "Traceback" not in r.stderr
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:0"],
                        cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "EVERY" in r.stderr

@@ -1,13 +1,16 @@
 """Training the appearance cue's network (:mod:`tracker_service.appearance`) on rendered views of
-the training recordings.
+the training recordings and gesture scripts.
 
 Data: every ``every``-th frame of every training take (the held-out takes, ``db_build.is_held_out``,
-are never used) played by the synthetic scene on a random person (``seed_base + row`` chooses the
-person, the outfit, the room and the lighting; the benchmark subjects' seeds 3, 7 and 11 are not
-among them). Each sample is :func:`~tracker_service.appearance.person_crop` of the true silhouette
-and the joints relative to the pelvis in the camera's axes over the person's height. Frames whose
-silhouette touches the image border are skipped. Rendered samples are cached per take and pass
-under the network's folder (``data/``), so a second training does not render again.
+are never used; the gesture scripts the database holds are takes too, numbered from
+:data:`SCRIPT_ROW_BASE`) played by the synthetic scene on a random person (``seed_base + row``
+chooses the person, the outfit, the room and the lighting; the benchmark subjects' seeds 3, 7 and
+11 are not among them). Posture passes play the poses stooped and with bent knees first
+(:mod:`tracker_service.posture_variation`). Each sample is
+:func:`~tracker_service.appearance.person_crop` of the true silhouette and the joints relative to
+the pelvis in the camera's axes over the person's height. Frames whose silhouette touches the image
+border are skipped. Rendered samples are cached per take and pass under the network's folder
+(``data/``), so a second training does not render again.
 
 Network: five 3 x 3 convolutions with batch norm and ReLU (the first with stride 2, max pools after
 the second, third and fourth), then two dense layers; the output is the 72 coordinates and their 72
@@ -25,6 +28,7 @@ import logging
 import os
 import time
 import zipfile
+import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -39,10 +43,11 @@ from numpy.typing import NDArray
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 
 from .appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
-from .posture_variation import PostureParams, vary_posture
+from .posture_variation import POSTURE_VERSION, PostureParams, vary_posture
 
 __all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "SCRIPT_ROW_BASE", "Samples", "TrainConfig", "concat_samples",
-           "export_layers", "render_samples", "render_take", "train_network", "training_takes"]
+           "export_layers", "member_posture_passes", "render_samples", "render_take", "train_network",
+           "training_takes"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +68,7 @@ class TrainConfig:
     posture_passes : tuple of (int, int)
         More passes, their poses varied by ``posture`` (:mod:`tracker_service.posture_variation`).
     posture : PostureParams
+        How the posture passes vary the poses.
     epochs, batch : int
     lr, weight_decay : float
         AdamW with a one-cycle learning-rate schedule peaking at ``lr``.
@@ -96,6 +102,12 @@ MEMBER_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (
 )
 #: Each network's passes with varied postures (session 27; :mod:`tracker_service.posture_variation`).
 MEMBER_POSTURE_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((7000, 3),), ((8000, 3),))
+
+
+def member_posture_passes(n: int) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """The default posture passes of an ensemble of ``n`` networks (networks beyond the defaults get
+    none)."""
+    return (*MEMBER_POSTURE_PASSES, *((),) * n)[:n]
 
 
 @dataclass(frozen=True)
@@ -209,16 +221,23 @@ def training_takes(recordings: Sequence[tuple[int, str]], scripts: Sequence[str 
     """
     if any(row >= SCRIPT_ROW_BASE for row, _ in recordings):
         raise ValueError(f"recording rows must be below {SCRIPT_ROW_BASE} (the gesture scripts' numbers)")
+    if len(scripts) > _MAX_SCRIPTS:  # the numbers must stay below the next pass's seed base
+        raise ValueError(f"at most {_MAX_SCRIPTS} gesture scripts, got {len(scripts)}")
     return [*recordings, *((SCRIPT_ROW_BASE + k, str(p)) for k, p in enumerate(scripts))]
 
 
+#: Seed bases are 1000 apart: the scripts' numbers stay below the next base.
+_MAX_SCRIPTS = 1000 - SCRIPT_ROW_BASE
+
+
 def _cache_name(row: int, path: str) -> str:
-    """A recording's cached views are named by its INDEX.tsv row, a gesture script's by its file
-    (its number depends on which scripts are used)."""
+    """A recording's cached views are named by its INDEX.tsv row; a gesture script's by its file
+    name, its number (which chose the person: it depends on which scripts are used) and a digest of
+    its full path (two folders may hold scripts of the same name)."""
     if row < SCRIPT_ROW_BASE:
         return f"{row:03d}.npz"
-    p = Path(path)
-    return f"script_{p.parent.parent.name}_{p.stem}.npz"
+    p = Path(path).resolve()
+    return f"script_{p.stem}_{row}_{zlib.crc32(str(p).encode()):08x}.npz"
 
 
 def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[int, int]], size: int,
@@ -235,14 +254,14 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
     size : int
     cache : Path
         Folder of the per-take files (``<seed_base>_<every>_<size>/<row>.npz``, a script's
-        ``script_<package>_<name>.npz``).
+        ``script_<name>_<number>_<path digest>.npz``).
     jobs : int
     progress : callable(done, total), optional
     load : bool
         False: only render what the cache lacks and return no samples (an empty ``Samples``).
     posture : PostureParams, optional
         Render the poses varied (:func:`render_take`); cached in folders named with the parameters
-        (``<seed_base>_<every>_<size>_p<share %>t<trunk>k<knee>``).
+        (``<seed_base>_<every>_<size>_posture<version>_s<share>t<trunk>k<knee>``).
 
     Returns
     -------
@@ -250,7 +269,8 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
     """
     todo: list[tuple[str, int, int, int, str, PostureParams | None]] = []
     files: list[tuple[int, Path]] = []
-    tag = "" if posture is None else f"_p{round(100 * posture.share)}t{posture.trunk_deg:g}k{posture.knee_deg:g}"
+    tag = ("" if posture is None else
+           f"_posture{POSTURE_VERSION}_s{posture.share:g}t{posture.trunk_deg:g}k{posture.knee_deg:g}")
     for base, every in passes:
         folder = cache / f"{base}_{every}_{size}{tag}"
         folder.mkdir(parents=True, exist_ok=True)
@@ -411,7 +431,9 @@ def train_network(samples: Samples, config: TrainConfig, threads: int | None = N
     if samples.crops.shape[1:3] != (config.size, config.size):
         raise ValueError(f"samples are {samples.crops.shape[1:3]} crops, the network takes {config.size}")
     takes = np.unique(samples.take) if len(samples.take) else np.zeros(0, np.int64)
-    val_takes = takes[:: config.validation_every] if len(takes) >= 2 * config.validation_every else takes[:0]
+    recorded = takes[takes < SCRIPT_ROW_BASE]  # validated on recordings only: the scripts are few and short
+    val_takes = (recorded[:: config.validation_every] if len(recorded) >= 2 * config.validation_every
+                 else takes[:0])
     val = np.isin(samples.take, val_takes) if len(samples.take) else np.zeros(len(samples), bool)
     tr = np.flatnonzero(~val)
     va = np.flatnonzero(val)

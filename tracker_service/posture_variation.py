@@ -12,8 +12,10 @@ without new recordings:
 * **bent knees**: each knee flexes (``+X``) by up to ``knee_deg`` (the other leg by 0.6-1.0 of it),
   its hip flexes forward (``-X``) by half of it and the ankle by half of it back, so the thigh leans
   forward and the foot stays flat, as in a squat;
-* the limits of :data:`protocol.skeleton.LIMITS_DEG` are kept, and the root is lowered so that the
-  lowest foot joint stays where it was (the person stays on the floor).
+* the limits of :data:`protocol.skeleton.LIMITS_DEG` are kept (on the turned joints; the others
+  are left as recorded), and the root is lowered so that the lowest foot joint stays where it was
+  on the motion's own skeleton (the person stays on the floor; a synthetic person of another size
+  may float or sink by a centimetre or two).
 
 Arms, head and the root's orientation are left as recorded: the variation adds postures around the
 recorded motions instead of inventing new ones.
@@ -30,7 +32,10 @@ from protocol.kinematics import fk
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX, POSE_SIZE, ROT_JOINTS, Body, clamp_pose
 
-__all__ = ["PostureParams", "vary_posture"]
+__all__ = ["POSTURE_VERSION", "PostureParams", "vary_posture"]
+
+#: Bumped whenever :func:`vary_posture` changes what it draws: cached renders are named with it.
+POSTURE_VERSION = 1
 
 _FEET = np.array([JOINT_INDEX[j] for j in ("l_ankle", "r_ankle", "l_toe", "r_toe")])
 _SLOT = {name: ROT_JOINTS.index(name) for name in ("spine", "chest", "l_hip", "l_knee", "l_ankle", "r_hip",
@@ -108,9 +113,11 @@ def vary_posture(poses: NDArray[np.float64], body: Body, rng: np.random.Generato
         turns |= {f"{side}_knee": bend, f"{side}_hip": -0.5 * bend, f"{side}_ankle": -0.5 * bend}
     for name, angle in turns.items():  # about the parent's left-right axis: turn first, then the recorded rotation
         rot[:, _SLOT[name]] = _turn_x(angle) @ rot[:, _SLOT[name]]
+    slots = np.array([_SLOT[name] for name in turns])
+    cols = (3 + 3 * slots[:, None] + np.arange(3)).ravel()
     new = poses[pick].copy()
-    new[:, 3:] = matrix_to_rotvec(rot).reshape(n, -1)
-    new = clamp_pose(new)
+    new[:, cols] = matrix_to_rotvec(rot[:, slots]).reshape(n, -1)
+    new[:, cols] = clamp_pose(new)[:, cols]  # only the turned joints: the rest stay as recorded, bit for bit
     new[:, 1] += fk(poses[pick], body)[:, _FEET, 1].min(axis=1) - fk(new, body)[:, _FEET, 1].min(axis=1)
     poses[pick] = new
     return poses

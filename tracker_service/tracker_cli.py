@@ -84,19 +84,22 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
                     help="one pass per pair: every take on the person SEED+row chooses, every EVERY-th frame; "
                          "one list per network, separated by ';' (default: 1000:3,2000:2,3000:2,4000:2 for the "
                          "first, 5000:2,6000:2,2000:2,3000:2 for the second)")
-    ap.add_argument("--posture-passes", type=_passes, metavar="SEED:EVERY,...[;...]",
+    pg = ap.add_mutually_exclusive_group()
+    pg.add_argument("--posture-passes", type=_passes, metavar="SEED:EVERY,...[;...]",
                     help="more passes with the poses varied (stooped, knees bent: tracker_service/"
                          "posture_variation.py), one list per network (default: 7000:3 for the first, 8000:3 "
-                         "for the second)")
-    ap.add_argument("--no-posture", action="store_true", help="no posture-varied passes")
+                         "for the second, none for more)")
+    pg.add_argument("--no-posture", action="store_true", help="no posture-varied passes")
     ap.add_argument("--members", type=int, metavar="N",
                     help="networks in the ensemble, each trained on its own passes with its own initial weights "
                          "(default: as many as --passes lists, else 2)")
-    ap.add_argument("--takes", type=int, metavar="N", help="use only the first N training takes (quick builds)")
-    ap.add_argument("--scripts", metavar="DIR", action="append", default=None,
+    ap.add_argument("--takes", type=int, metavar="N",
+                    help="use only the first N training recordings (quick builds; the scripts are added)")
+    sg = ap.add_mutually_exclusive_group()
+    sg.add_argument("--scripts", metavar="DIR", action="append", default=None,
                     help="also train on every gesture script (*.toml) in DIR (repeatable; default: the game's "
                          "and protocol's bundled scripts, the motions build-db adds to the database)")
-    ap.add_argument("--no-scripts", action="store_true", help="recordings only")
+    sg.add_argument("--no-scripts", action="store_true", help="recordings only")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
                     help="rendering processes (default: the CPUs)")
     ap.set_defaults(func=_cmd_train_appearance)
@@ -246,9 +249,9 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
     from .appearance import ensemble, save_appearance
     from .appearance_train import (
         MEMBER_PASSES,
-        MEMBER_POSTURE_PASSES,
         TrainConfig,
         concat_samples,
+        member_posture_passes,
         render_samples,
         train_network,
         training_takes,
@@ -271,7 +274,7 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
         recordings = recordings[:takes]
     script_files = _gesture_scripts(scripts)
     entries = training_takes(recordings, script_files)
-    postures = MEMBER_POSTURE_PASSES if posture_passes is None else posture_passes
+    postures = member_posture_passes(n) if posture_passes is None else posture_passes
     if postures and len(postures) != n:
         raise ValueError(f"{n} network(s) need {n} posture pass list(s) separated by ';' in --posture-passes, "
                          f"got {len(postures)}")

@@ -31,7 +31,7 @@ import zipfile
 import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,7 @@ from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 from .appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
 from .posture_variation import POSTURE_VERSION, PostureParams, vary_posture
 
-__all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "SCRIPT_ROW_BASE", "Samples", "TrainConfig", "concat_samples",
+__all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "SCRIPT_ROW_BASE", "Samples", "TrainConfig", "config_samples",
            "export_layers", "member_posture_passes", "render_samples", "render_take", "train_network",
            "training_takes"]
 
@@ -154,8 +154,6 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
     Samples
         ``take`` left empty (the caller knows it).
     """
-    from dataclasses import replace
-
     from protocol.motion import load_motion
 
     from .scene import SceneConfig, SyntheticScene
@@ -313,8 +311,27 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
                    np.concatenate(takes))
 
 
-def concat_samples(parts: Sequence[Samples]) -> Samples:
-    """The samples of several :func:`render_samples` calls as one (at least one part)."""
+def config_samples(entries: Sequence[tuple[int, str]], config: TrainConfig, cache: Path, jobs: int = 1
+                   ) -> Samples:
+    """A network's training samples: its passes and its posture passes (:func:`render_samples`,
+    rendered where the cache lacks them).
+
+    Parameters
+    ----------
+    entries : sequence of (int, str)
+        :func:`training_takes`.
+    config : TrainConfig
+    cache : Path
+    jobs : int
+
+    Returns
+    -------
+    Samples
+    """
+    parts = [render_samples(entries, config.passes, config.size, cache, jobs)]
+    if config.posture_passes:
+        parts.append(render_samples(entries, config.posture_passes, config.size, cache, jobs,
+                                    posture=config.posture))
     if len(parts) == 1:
         return parts[0]
     return Samples(np.concatenate([p.crops for p in parts]), np.concatenate([p.masks for p in parts]),

@@ -68,15 +68,6 @@ class PostureParams:
                              f"{self.knee_deg}")
 
 
-def _turn_x(angle: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rotations about ``+X`` by each ``angle`` (radians), ``(n, 3, 3)``."""
-    c, s = np.cos(angle), np.sin(angle)
-    m = np.zeros((len(angle), 3, 3))
-    m[:, 0, 0] = 1.0
-    m[:, 1, 1], m[:, 1, 2], m[:, 2, 1], m[:, 2, 2] = c, -s, s, c
-    return m
-
-
 def vary_posture(poses: NDArray[np.float64], body: Body, rng: np.random.Generator,
                  params: PostureParams = PostureParams()) -> NDArray[np.float64]:
     """Stoop and bend the knees of a random share of the frames (see the module docstring).
@@ -106,18 +97,18 @@ def vary_posture(poses: NDArray[np.float64], body: Body, rng: np.random.Generato
     knee = np.radians(rng.uniform(0.0, params.knee_deg, n))
     sides = rng.uniform(0.6, 1.0, (n, 2))
     sides[np.arange(n), rng.integers(0, 2, n)] = 1.0  # one leg bends the full angle
-    rot = rotvec_to_matrix(poses[pick, 3:].reshape(n, -1, 3))
     turns = {"spine": 0.6 * trunk, "chest": 0.4 * trunk}
     for k, side in enumerate("lr"):
         bend = knee * sides[:, k]
         turns |= {f"{side}_knee": bend, f"{side}_hip": -0.5 * bend, f"{side}_ankle": -0.5 * bend}
-    for name, angle in turns.items():  # about the parent's left-right axis: turn first, then the recorded rotation
-        rot[:, _SLOT[name]] = _turn_x(angle) @ rot[:, _SLOT[name]]
     slots = np.array([_SLOT[name] for name in turns])
-    cols = (3 + 3 * slots[:, None] + np.arange(3)).ravel()
+    cols = (3 + 3 * slots[:, None] + np.arange(3)).ravel()  # only the turned joints are touched
     new = poses[pick].copy()
-    new[:, cols] = matrix_to_rotvec(rot[:, slots]).reshape(n, -1)
-    new[:, cols] = clamp_pose(new)[:, cols]  # only the turned joints: the rest stay as recorded, bit for bit
+    about_x = np.stack(list(turns.values()), axis=1)[..., None] * np.array([1.0, 0.0, 0.0])  # (n, m, 3)
+    # about the parent's left-right axis: the turn first, then the recorded rotation
+    rot = rotvec_to_matrix(about_x) @ rotvec_to_matrix(new[:, cols].reshape(n, -1, 3))
+    new[:, cols] = matrix_to_rotvec(rot).reshape(n, -1)
+    new[:, cols] = clamp_pose(new)[:, cols]  # the rest stay as recorded, bit for bit
     new[:, 1] += fk(poses[pick], body)[:, _FEET, 1].min(axis=1) - fk(new, body)[:, _FEET, 1].min(axis=1)
     poses[pick] = new
     return poses

@@ -191,7 +191,7 @@ def ensure_db(path: str | None, body: str = _DEFAULT_BODY, build_if_missing: boo
         if path or not build_if_missing or (p / "manifest.json").exists():
             raise
         log.warning("%s; building it now (a few minutes, cached for next time)", exc)
-        _build(body, p, None, [str(d) for d in DEFAULT_SCRIPT_DIRS], None, None)
+        _build(body, p, None, _script_dirs(None), None, None)
         return load_db(p)
 
 
@@ -231,7 +231,7 @@ def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
                     "mocap-tracker train-appearance)", p)
         return None
     log.warning("no appearance network at %s; training it now (some minutes, cached for next time)", p)
-    _train_appearance(p, None, None, None, None, os.cpu_count() or 1, scripts=[str(d) for d in DEFAULT_SCRIPT_DIRS])
+    _train_appearance(p, None, None, None, None, os.cpu_count() or 1, scripts=_script_dirs(None))
     return load_appearance(p)
 
 
@@ -250,7 +250,7 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
     from .appearance_train import (
         MEMBER_PASSES,
         TrainConfig,
-        concat_samples,
+        config_samples,
         member_posture_passes,
         render_samples,
         train_network,
@@ -297,12 +297,7 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
     t1 = time.perf_counter()
     nets = []
     for k, cfg in enumerate(configs):
-        parts = [render_samples(entries, cfg.passes, cfg.size, out.parent / "data")]  # cached: read only
-        if cfg.posture_passes:
-            parts.append(render_samples(entries, cfg.posture_passes, cfg.size, out.parent / "data",
-                                        posture=cfg.posture))
-        samples = concat_samples(parts)
-        del parts
+        samples = config_samples(entries, cfg, out.parent / "data")  # cached: read only
         with tqdm(total=cfg.epochs, desc=f"train network {k + 1}/{n} on {len(samples)} views", unit="epoch") as bar:
             def trained(epoch: int, epochs: int, fig: dict[str, float]) -> None:
                 bar.update(1)
@@ -327,11 +322,9 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.members is not None and args.members < 1:
         raise ValueError(f"--members must be >= 1, got {args.members}")
-    dirs = [] if args.no_scripts else (args.scripts if args.scripts is not None
-                                       else [str(d) for d in DEFAULT_SCRIPT_DIRS])
     postures = () if args.no_posture else args.posture_passes
-    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members, dirs,
-                             postures)
+    meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members,
+                             _script_dirs(args), postures)
     for i, m in enumerate(meta.get("members") or [meta]):
         val = ("validation RMS x / y / z " + " / ".join(f"{100 * m[c]:.1f}" for c in ("val_rms_x", "val_rms_y",
                                                                                       "val_rms_z"))
@@ -341,6 +334,16 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
           f"rendering {meta['render_s']:.0f} s, training "
           f"{meta['train_s']:.0f} s -> {out}")
     return 0
+
+
+def _script_dirs(args: argparse.Namespace | None) -> list[str]:
+    """The folders of gesture scripts ``--scripts`` / ``--no-scripts`` name (build-db and
+    train-appearance); :data:`DEFAULT_SCRIPT_DIRS` without them (or without ``args``)."""
+    if args is not None and args.no_scripts:
+        return []
+    if args is not None and args.scripts is not None:
+        return list(args.scripts)
+    return [str(d) for d in DEFAULT_SCRIPT_DIRS]
 
 
 def _gesture_scripts(dirs: Sequence[str]) -> list[Path]:
@@ -394,9 +397,7 @@ def _cmd_build_db(args: argparse.Namespace) -> int:
 
     for name in args.bodies:
         out = Path(args.out) / name if (args.out and len(args.bodies) > 1) else Path(args.out or default_db_dir(name))
-        dirs = [] if args.no_scripts else (args.scripts if args.scripts is not None
-                                           else [str(d) for d in DEFAULT_SCRIPT_DIRS])
-        meta = _build(name, out, args.mocap, dirs, args.max_poses, args.takes)
+        meta = _build(name, out, args.mocap, _script_dirs(args), args.max_poses, args.takes)
         s = meta["stats"]
         print(f"{name}: {int(s['poses'])} poses from {int(s['frames'])} frames; tree "
               f"{int(s['level1_nodes'])}/{int(s['level2_nodes'])}/{int(s['level3_nodes'])} nodes; "

@@ -7,7 +7,7 @@ import pytest
 from protocol import fk
 from protocol.skeleton import JOINT_INDEX, ROT_SLOT, standing_pose
 from tracker_service.body_models import body_model
-from tracker_service.body_selection import measured_stature
+from tracker_service.body_selection import BodyChoice, measured_stature
 from tracker_service.camera import default_camera
 from tracker_service.placement import (
     feet_in_view,
@@ -111,6 +111,52 @@ def test_measured_stature_of_standing_bodies(spot: tuple[float, float]) -> None:
         # within a pixel of the head and feet rows at that distance (children's feet are shorter)
         tol = 0.03 * float(cam.depth(pose[:3])) / 3.0
         assert measured_stature(mask, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name
+
+
+@pytest.mark.parametrize("raise_rad", [1.2, 2.0, 2.6])
+def test_measured_stature_with_a_hand_above_the_head(raise_rad: float) -> None:
+    """A raised hand tops the silhouette: without the pose the extent overshoots the stature by
+    the hand's height over the head; with the pose's joints (units of height) it is the stature."""
+    cam = default_camera()
+    db_body = body_model("mMA").body
+    for name in ("wSY", "mMA", "mTA", "cMA"):
+        b = body_model(name).body
+        pose = standing_pose(b)
+        slot = ROT_SLOT[JOINT_INDEX["l_shoulder"]]
+        pose[3 + 3 * slot: 6 + 3 * slot] = [0.0, 0.0, raise_rad]
+        joints = fk(pose, b)
+        assert int(np.argmax(joints[:, 1])) == JOINT_INDEX["l_hand_tip"]
+        mask = render_silhouette(joints, b.capsule_radii, cam)
+        obs = observed_placement(mask, cam)
+        assert obs is not None
+        assert measured_stature(mask, obs, cam, db_body) > b.height + 0.05, name
+        got = measured_stature(mask, obs, cam, db_body, joints / b.height)
+        assert got == pytest.approx(b.height, abs=0.03), name  # about a pixel at 3 m, as standing
+
+
+def test_measured_stature_with_the_head_on_top_ignores_the_pose() -> None:
+    cam = default_camera()
+    db_body = body_model("mMA").body
+    b = body_model("mLA").body
+    pose = standing_pose(b)
+    joints = fk(pose, b)
+    mask = render_silhouette(joints, b.capsule_radii, cam)
+    obs = observed_placement(mask, cam)
+    assert obs is not None
+    assert measured_stature(mask, obs, cam, db_body, joints / b.height) == measured_stature(mask, obs, cam, db_body)
+    assert np.isnan(measured_stature(np.zeros_like(mask), obs, cam, db_body, joints / b.height))
+
+
+def test_body_choice_keeps_a_man_taller_than_the_family_at_its_tallest() -> None:
+    db_body = body_model("mMA").body
+    scores = {"mTA": [0.30, 0.32], "mLY": [0.25, 0.27], "mLA": [0.28, 0.26]}  # the shorter match better
+    assert BodyChoice.from_scores(scores, db_body, 1.87).body.name == "mTA"  # 1.80 m: the nearest height
+    # within the tolerance the silhouette decides, as before
+    assert BodyChoice.from_scores(scores, db_body, 1.79).body.name == "mLY"
+    choice = BodyChoice.from_scores(scores, db_body, float("nan"))
+    assert choice.body.name == "mLY"
+    assert choice.scale == pytest.approx(1.75 / db_body.height)
+    assert BodyChoice.from_scores({}, db_body, 1.87).body is db_body
 
 
 def test_template_bottoms_at_every_level(small_db) -> None:  # type: ignore[no-untyped-def]

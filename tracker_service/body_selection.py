@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.skeleton import Body
+from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body
 
 from .body_models import body_model
 from .camera import Camera
@@ -26,6 +26,11 @@ from .placement import scaled_placement
 from .tree_filter import FilterDB, FilterParams, initial_state, step
 
 __all__ = ["BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
+
+_HEAD_TOP = JOINT_INDEX["head_top"]
+_HAND_TIPS = np.array([JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]])
+_SKULL = CAPSULE_INDEX["skull"]
+_HAND = CAPSULE_INDEX["l_hand"]
 
 
 def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], observed: NDArray[np.float64],
@@ -70,14 +75,35 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
 
 
 def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], camera: Camera,
-                     db_body: Body) -> float:
+                     db_body: Body, joints: NDArray[np.float64] | None = None) -> float:
     """Standing height (metres) of the subject from the silhouette's vertical extent.
 
     The feet line gives the depth (``observed`` is the database body's placement at that depth:
     ``d = d_ref / s``) and the row of the floor under the body (not the toe tips, which are
-    nearer the camera and lower in the image); for a level camera the height is the rows from that
-    floor point to the top of the silhouette times ``d / f``. Valid while the head is the top of
-    the silhouette (the caller checks).
+    nearer the camera and lower in the image); for a level camera the extent is the rows from that
+    floor point to the top of the silhouette times ``d / f``. That extent is the stature while the
+    head is the top of the silhouette. With the pose's ``joints`` it is measured whatever the top:
+    a hand raised above the head (a wave, a greeting: the first frames of many takes) tops the
+    silhouette by ``delta`` heights, the hand tip's top (joint plus the hand's end radius) over the
+    head's (head-top joint plus the skull's), and the stature is ``extent / (1 + delta)``.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    observed : (3,) float
+        :func:`~tracker_service.placement.observed_placement` of ``mask``.
+    camera : Camera
+    db_body : Body
+        Its end radii over its height give the hands' and the head's tops.
+    joints : (J, 3) float, optional
+        The current pose's joints in units of the person's height, ``y`` up (world, or the
+        camera's axes as the appearance network reads them). Without them the head is assumed on
+        top.
+
+    Returns
+    -------
+    float
+        NaN for an empty silhouette.
     """
     ys = np.flatnonzero(mask.any(axis=1))
     if len(ys) == 0:
@@ -86,7 +112,14 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     s = max(float(observed[2]), 1e-6)
     d = float(camera.depth(ref)) / s
     floor_row = camera.cy + s * (float(camera.project(np.zeros(3))[1]) - camera.cy)
-    return float((floor_row - (ys[0] - 0.5)) * d / camera.fy)
+    extent = float((floor_row - (ys[0] - 0.5)) * d / camera.fy)
+    if joints is None:
+        return extent
+    y = np.asarray(joints, np.float64)[:, 1]
+    r = db_body.capsule_radii[:, 1] / db_body.height
+    head = y[_HEAD_TOP] + r[_SKULL]
+    delta = max(float(y[_HAND_TIPS].max() + r[_HAND]) - float(head), 0.0)
+    return extent / (1.0 + delta)
 
 
 def candidates_near(candidates: Sequence[str], height_m: float, tolerance_m: float = 0.08,
@@ -110,14 +143,16 @@ class BodyChoice:
     def from_scores(scores: dict[str, list[float]], db_body: Body, stature: float = float("nan"),
                     tolerance_m: float = 0.06) -> BodyChoice:
         """Lowest mean distance wins among the candidates whose height is within ``tolerance_m`` of
-        the measured ``stature`` (all candidates when it is unknown); no scores keeps the
-        database's body."""
+        the measured ``stature`` (those at the nearest height when none is; all candidates when the
+        stature is unknown); no scores keeps the database's body."""
         if not scores:
             return BodyChoice(db_body, 1.0, float("nan"))
         names = list(scores)
         if np.isfinite(stature):
-            near = [n for n in names if abs(body_model(n).body.height - stature) <= tolerance_m]
-            names = near or sorted(names, key=lambda n: abs(body_model(n).body.height - stature))[:3]
+            gap = {n: abs(body_model(n).body.height - stature) for n in names}
+            # beyond the family's range (a man taller than its tallest) only the nearest height stays:
+            # a shorter model's better silhouette score must not shrink him further
+            names = [n for n in names if gap[n] <= max(tolerance_m, min(gap.values()) + 1e-6)]
         name = min(names, key=lambda n: float(np.mean(scores[n])))
         body = body_model(name).body
         return BodyChoice(body, body.height / db_body.height, float(np.mean(scores[name])))

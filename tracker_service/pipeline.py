@@ -365,8 +365,12 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         shoe_samples = (*shoe_samples, band_pixels(frame, mask, config.shoes))
     body, scale = state.body, state.body_scale
     if phase == "initialising" and config.body_candidates and raw is not None:
-        if int(np.argmax(fk(pose, db_body)[:, 1])) == JOINT_INDEX["head_top"]:  # head on top: height measurable
-            statures = (*statures, measured_stature(mask, raw, camera, db_body))
+        # measured whatever tops the silhouette, the head or a raised hand (as the network reads the
+        # pose: it sees a raised hand better than the first frames' filter pose)
+        tops = seen[0] if seen is not None else fk(pose, db_body) / db_body.height
+        st = measured_stature(mask, raw, camera, db_body, tops)
+        if np.isfinite(st):
+            statures = (*statures, st)
         ref = float(np.median(statures)) if statures else db_body.height
         cands = candidates_near(config.body_candidates, ref)
         sel_feats = preprocess(mask, "xor")  # symmetric: nwXOR's cheap contour misses favour small bodies

@@ -6,6 +6,7 @@ import pytest
 
 from protocol import fk
 from protocol.skeleton import JOINT_INDEX, ROT_SLOT, standing_pose
+from tracker_service.appearance import camera_joints
 from tracker_service.body_models import body_model
 from tracker_service.body_selection import BodyChoice, measured_stature
 from tracker_service.camera import default_camera
@@ -113,25 +114,38 @@ def test_measured_stature_of_standing_bodies(spot: tuple[float, float]) -> None:
         assert measured_stature(mask, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name
 
 
-@pytest.mark.parametrize("raise_rad", [1.2, 2.0, 2.6])
-def test_measured_stature_with_a_hand_above_the_head(raise_rad: float) -> None:
+def _raised_left_arm(rotvec: np.ndarray, name: str) -> tuple[np.ndarray, float]:
+    b = body_model(name).body
+    pose = standing_pose(b)
+    slot = ROT_SLOT[JOINT_INDEX["l_shoulder"]]
+    pose[3 + 3 * slot: 6 + 3 * slot] = rotvec
+    return fk(pose, b), b.height
+
+
+#: The left arm (pointing along +x in the T-pose) raised sideways, or swung forward (toward the
+#: camera) and up by 40-75 degrees above the horizontal, or up and back past the vertical (110).
+_RAISES = {"side 69": [0.0, 0.0, 1.2], "side 115": [0.0, 0.0, 2.0],
+           **{f"front {th}": list(np.pi / 2 * np.array([0.0, -np.cos(np.radians(th)), np.sin(np.radians(th))]))
+              for th in (40, 75, 110)}}
+
+
+@pytest.mark.parametrize("raise_name", list(_RAISES))
+def test_measured_stature_with_a_hand_above_the_head(raise_name: str) -> None:
     """A raised hand tops the silhouette: without the pose the extent overshoots the stature by
-    the hand's height over the head; with the pose's joints (units of height) it is the stature."""
+    the hand's height over the head; with the pose's joints as the network reads them (camera
+    axes, units of height) it is the stature, also for a hand held toward the camera or behind
+    the head (perspective)."""
     cam = default_camera()
     db_body = body_model("mMA").body
     for name in ("wSY", "mMA", "mTA", "cMA"):
-        b = body_model(name).body
-        pose = standing_pose(b)
-        slot = ROT_SLOT[JOINT_INDEX["l_shoulder"]]
-        pose[3 + 3 * slot: 6 + 3 * slot] = [0.0, 0.0, raise_rad]
-        joints = fk(pose, b)
+        joints, height = _raised_left_arm(np.array(_RAISES[raise_name]), name)
         assert int(np.argmax(joints[:, 1])) == JOINT_INDEX["l_hand_tip"]
-        mask = render_silhouette(joints, b.capsule_radii, cam)
+        mask = render_silhouette(joints, body_model(name).body.capsule_radii, cam)
         obs = observed_placement(mask, cam)
         assert obs is not None
-        assert measured_stature(mask, obs, cam, db_body) > b.height + 0.05, name
-        got = measured_stature(mask, obs, cam, db_body, joints / b.height)
-        assert got == pytest.approx(b.height, abs=0.03), name  # about a pixel at 3 m, as standing
+        assert measured_stature(mask, obs, cam, db_body) > height + 0.1, name
+        got = measured_stature(mask, obs, cam, db_body, camera_joints(joints, cam, height))
+        assert got == pytest.approx(height, abs=0.03), name  # about a pixel at 3 m, as standing
 
 
 def test_measured_stature_with_the_head_on_top_ignores_the_pose() -> None:
@@ -143,8 +157,11 @@ def test_measured_stature_with_the_head_on_top_ignores_the_pose() -> None:
     mask = render_silhouette(joints, b.capsule_radii, cam)
     obs = observed_placement(mask, cam)
     assert obs is not None
-    assert measured_stature(mask, obs, cam, db_body, joints / b.height) == measured_stature(mask, obs, cam, db_body)
-    assert np.isnan(measured_stature(np.zeros_like(mask), obs, cam, db_body, joints / b.height))
+    read = camera_joints(joints, cam, b.height)
+    assert measured_stature(mask, obs, cam, db_body, read) == measured_stature(mask, obs, cam, db_body)
+    assert np.isnan(measured_stature(np.zeros_like(mask), obs, cam, db_body, read))
+    read[3, 2] = np.nan
+    assert np.isnan(measured_stature(mask, obs, cam, db_body, read))
 
 
 def test_body_choice_keeps_a_man_taller_than_the_family_at_its_tallest() -> None:

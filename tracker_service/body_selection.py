@@ -5,8 +5,9 @@ During the first frames every candidate body is tried: the templates are scaled 
 body would have at the subject's physical depth (from the silhouette's feet line, so body height
 is *not* absorbed by the scale) and the best silhouette match (nwXOR) is found; the candidate with
 the lowest mean distance wins, among the models whose height is close to the stature measured
-from the silhouette (when the head is its top). When no database was built for the winner, the tracker keeps the
-database's templates and scales them by ``height(winner) / height(database body)``.
+from the silhouette (down from a raised hand's top to the head's, by the pose). When no database
+was built for the winner, the tracker keeps the database's templates and scales them by
+``height(winner) / height(database body)``.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ __all__ = ["BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
 _HEAD_TOP = JOINT_INDEX["head_top"]
 _HAND_TIPS = np.array([JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]])
 _SKULL = CAPSULE_INDEX["skull"]
-_HAND = CAPSULE_INDEX["l_hand"]
+_HANDS = np.array([CAPSULE_INDEX["l_hand"], CAPSULE_INDEX["r_hand"]])
 
 
 def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], observed: NDArray[np.float64],
@@ -82,28 +83,33 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     ``d = d_ref / s``) and the row of the floor under the body (not the toe tips, which are
     nearer the camera and lower in the image); for a level camera the extent is the rows from that
     floor point to the top of the silhouette times ``d / f``. That extent is the stature while the
-    head is the top of the silhouette. With the pose's ``joints`` it is measured whatever the top:
-    a hand raised above the head (a wave, a greeting: the first frames of many takes) tops the
-    silhouette by ``delta`` heights, the hand tip's top (joint plus the hand's end radius) over the
-    head's (head-top joint plus the skull's), and the stature is ``extent / (1 + delta)``.
+    head tops the silhouette. With the pose's ``joints`` it is measured whatever tops it: a hand
+    (a wave, a greeting: the first frames of many takes) whose top (tip joint plus the hand's end
+    radius) is ``a`` statures above the floor and ``z`` statures nearer the camera than the head
+    reaches the silhouette's top row at the stature ``extent / (a + u z / f_y)`` (``u``: the top
+    row's height above the principal point, pixels; perspective: a hand held toward the camera
+    looks higher). The head (``a = 1``, ``z = 0``) gives the extent; the stature is the smallest
+    of the three, the one whose top the silhouette's is.
 
     Parameters
     ----------
     mask : (H, W) bool
+        The silhouette at the camera's resolution.
     observed : (3,) float
         :func:`~tracker_service.placement.observed_placement` of ``mask``.
     camera : Camera
+        The database's (level) camera.
     db_body : Body
         Its end radii over its height give the hands' and the head's tops.
     joints : (J, 3) float, optional
-        The current pose's joints in units of the person's height, ``y`` up (world, or the
-        camera's axes as the appearance network reads them). Without them the head is assumed on
-        top.
+        The current pose's joints in units of the person's height in the camera's axes (``y`` up,
+        ``z`` toward the camera), as the appearance network reads them (any origin). Without them
+        the head is assumed on top.
 
     Returns
     -------
     float
-        NaN for an empty silhouette.
+        NaN for an empty silhouette or joints that are not finite.
     """
     ys = np.flatnonzero(mask.any(axis=1))
     if len(ys) == 0:
@@ -112,14 +118,20 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     s = max(float(observed[2]), 1e-6)
     d = float(camera.depth(ref)) / s
     floor_row = camera.cy + s * (float(camera.project(np.zeros(3))[1]) - camera.cy)
-    extent = float((floor_row - (ys[0] - 0.5)) * d / camera.fy)
+    top_row = ys[0] - 0.5
+    extent = float((floor_row - top_row) * d / camera.fy)
     if joints is None:
         return extent
-    y = np.asarray(joints, np.float64)[:, 1]
+    j = np.asarray(joints, np.float64)
+    if not np.isfinite(j).all():
+        return float("nan")
     r = db_body.capsule_radii[:, 1] / db_body.height
-    head = y[_HEAD_TOP] + r[_SKULL]
-    delta = max(float(y[_HAND_TIPS].max() + r[_HAND]) - float(head), 0.0)
-    return extent / (1.0 + delta)
+    head = j[_HEAD_TOP, 1] + r[_SKULL]
+    a = 1.0 + j[_HAND_TIPS, 1] + r[_HANDS] - head
+    z = j[_HAND_TIPS, 2] - j[_HEAD_TOP, 2]
+    den = a + (camera.cy - top_row) * z / camera.fy
+    # (a hand far below the head and far behind it cannot top the silhouette: its denominator is small)
+    return float(min([extent, *(extent / den[den > 0.5])]))
 
 
 def candidates_near(candidates: Sequence[str], height_m: float, tolerance_m: float = 0.08,

@@ -112,8 +112,8 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     shutil.copy(REPO / "game_client" / "scripts" / "crouch.toml", scripts)
     (scripts / "labels.toml").write_text("title = 'not a script'\n")
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--takes", "2", "--passes",
-                        "7:60;8:60", "--posture-passes", "9:60;10:60", "--epochs", "1", "--jobs", "1", "--scripts",
-                        str(scripts), "--out", str(out)],
+                        "7:60;8:60", "--posture-passes", "9:60;10:60", "--epochs", "1", "--width", "8", "--jobs", "1",
+                        "--scripts", str(scripts), "--out", str(out)],
                        cwd=REPO, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "appearance network 2:" in r.stdout and "1 gesture scripts" in r.stdout and out.is_file()
@@ -123,6 +123,8 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     assert [m["config"]["passes"] for m in net.meta["members"]] == [[[7, 60]], [[8, 60]]]
     assert [m["config"]["posture_passes"] for m in net.meta["members"]] == [[[9, 60]], [[10, 60]]]
     assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
+    assert [m["config"]["width"] for m in net.meta["members"]] == [8, 8]
+    assert net.networks[0][0].weight.shape[0] == 8  # the first convolution's channels
     for folder in ("7_60_64", "8_60_64"):
         names = sorted(p.name for p in (out.parent / "data" / folder).glob("*.npz"))
         assert len(names) == 3 and names[-1].startswith("script_crouch_900_")
@@ -142,7 +144,7 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:0"],
                        cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "EVERY" in r.stderr
-    for flag in ("--epochs", "--takes", "--jobs", "--members"):  # 0 is an error, not "the default"
+    for flag in ("--epochs", "--takes", "--jobs", "--members", "--width"):  # 0 is an error, not "the default"
         r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", flag, "0", "--out",
                             str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
         assert r.returncode != 0 and f"{flag} must be >= 1" in r.stderr and "Traceback" not in r.stderr

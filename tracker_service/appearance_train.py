@@ -61,7 +61,8 @@ class TrainConfig:
     size : int
         Input side (pixels).
     width : int
-        Channels of the first convolution (the others are 2, 4, 8 and 8 times it).
+        Channels of the first convolution (the others are 2, 4, 8 and 8 times it). 24 since session
+        28 (16 before: the wider network reads 5 % better at +4 ms a frame, docs/TRACKER.md).
     passes : tuple of (int, int)
         ``(seed_base, every)`` per pass over the training takes: each pass renders every take on
         another person, every ``every``-th frame.
@@ -81,7 +82,7 @@ class TrainConfig:
     """
 
     size: int = 64
-    width: int = 16
+    width: int = 24
     passes: tuple[tuple[int, int], ...] = ((1000, 3), (2000, 2), (3000, 2), (4000, 2))
     posture_passes: tuple[tuple[int, int], ...] = ()
     posture: PostureParams = field(default_factory=PostureParams)

@@ -80,6 +80,9 @@ def add_tracker_parsers(sub: Any, parents: Sequence[argparse.ArgumentParser]) ->
     ap.add_argument("--out", metavar="PATH", help="network file (default: out/appearance/net.npz)")
     ap.add_argument("--mocap", metavar="DIR", help="recordings folder (default: ../shared/mocap or $MOCAP_DATA)")
     ap.add_argument("--epochs", type=int, metavar="N", help="training epochs (default: 15)")
+    ap.add_argument("--width", type=int, metavar="C",
+                    help="channels of the first convolution, the others 2, 4, 8 and 8 times it (default: 24; "
+                         "16 before session 28)")
     ap.add_argument("--passes", type=_passes, metavar="SEED:EVERY,...[;...]",
                     help="one pass per pair: every take on the person SEED+row chooses, every EVERY-th frame; "
                          "one list per network, separated by ';' (default: 1000:3,2000:2,3000:2,4000:2 for the "
@@ -238,10 +241,11 @@ def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
 def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
                       passes: tuple[tuple[tuple[int, int], ...], ...] | None, takes: int | None, jobs: int,
                       members: int | None = None, scripts: Sequence[str] = (),
-                      posture_passes: tuple[tuple[tuple[int, int], ...], ...] | None = None) -> dict[str, Any]:
+                      posture_passes: tuple[tuple[tuple[int, int], ...], ...] | None = None,
+                      width: int | None = None) -> dict[str, Any]:
     """Render the training views and train the ensemble (``scripts``: folders of gesture scripts
     whose motions are trained on too; ``posture_passes``: each network's passes with varied
-    postures, None for the defaults, ``()`` for none)."""
+    postures, None for the defaults, ``()`` for none; ``width``: None for the default)."""
     from dataclasses import replace as dc_replace
 
     from tqdm import tqdm
@@ -278,7 +282,11 @@ def _train_appearance(out: Path, mocap: str | None, epochs: int | None,
     if postures and len(postures) != n:
         raise ValueError(f"{n} network(s) need {n} posture pass list(s) separated by ';' in --posture-passes, "
                          f"got {len(postures)}")
-    base = TrainConfig() if epochs is None else TrainConfig(epochs=epochs)
+    base = TrainConfig()
+    if epochs is not None:
+        base = dc_replace(base, epochs=epochs)
+    if width is not None:
+        base = dc_replace(base, width=width)
     configs = [dc_replace(base, passes=plan[k], posture_passes=postures[k] if postures else (), seed=k)
                for k in range(n)]
     t0 = time.perf_counter()
@@ -317,14 +325,14 @@ def _cmd_train_appearance(args: argparse.Namespace) -> int:
     from .appearance import default_appearance_path
 
     out = Path(args.out) if args.out else default_appearance_path()
-    for name in ("jobs", "epochs", "takes"):
+    for name in ("jobs", "epochs", "takes", "width"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.members is not None and args.members < 1:
         raise ValueError(f"--members must be >= 1, got {args.members}")
     postures = () if args.no_posture else args.posture_passes
     meta = _train_appearance(out, args.mocap, args.epochs, args.passes, args.takes, args.jobs, args.members,
-                             _script_dirs(args), postures)
+                             _script_dirs(args), postures, args.width)
     for i, m in enumerate(meta.get("members") or [meta]):
         val = ("validation RMS x / y / z " + " / ".join(f"{100 * m[c]:.1f}" for c in ("val_rms_x", "val_rms_y",
                                                                                       "val_rms_z"))

@@ -47,23 +47,34 @@ def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFac
     return db, body, motions, stats, path
 
 
+def constant_reading_net(mu: np.ndarray, log_var: float, size: int = 16):  # type: ignore[no-untyped-def]
+    """An appearance network (:class:`tracker_service.appearance.AppearanceNet`) that reads ``mu``
+    (``(J, 3)``, camera axes over the height) with log variance ``log_var`` whatever it sees: one
+    convolution, then a dense layer that ignores it and answers its bias."""
+    from protocol.skeleton import N_JOINTS
+    from tracker_service.appearance import AppearanceNet, Layer
+
+    conv = Layer("conv", np.full((2, 4, 3, 3), 0.01, np.float32), np.zeros(2, np.float32), 2, True, True)
+    bias = np.concatenate([np.asarray(mu).ravel(), np.full(N_JOINTS * 3, log_var)]).astype(np.float32)
+    dense = Layer("dense", np.zeros((2 * N_JOINTS * 3, 2 * (size // 4) ** 2), np.float32), bias, 1, False, False)
+    return AppearanceNet(size, (conv, dense), {"fixture": "constant"})
+
+
 @pytest.fixture(scope="session")
 def weak_appearance_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An appearance network file (:mod:`tracker_service.appearance`) that always sees a person
-    standing with the arms down, with a wide variance: the cue's whole path runs without the half
-    hour of rendering and training a real network needs. Its layers: one convolution, then a
-    dense layer that ignores it and answers its bias."""
+    standing in the T-pose, with a wide variance (:func:`constant_reading_net`): the cue's whole
+    path runs without the half hour of rendering and training a real network needs."""
+    from dataclasses import replace
+
     from protocol import fk
-    from protocol.skeleton import N_JOINTS, POSE_SIZE
-    from tracker_service.appearance import AppearanceNet, Layer, camera_joints, save_appearance
+    from protocol.skeleton import POSE_SIZE
+    from tracker_service.appearance import camera_joints, save_appearance
     from tracker_service.body_models import body_model
     from tracker_service.camera import default_camera
 
-    size = 16
     body = body_model("mMA").body
     mu = camera_joints(fk(np.zeros(POSE_SIZE), body), default_camera(), body.height)
-    conv = Layer("conv", np.full((2, 4, 3, 3), 0.01, np.float32), np.zeros(2, np.float32), 2, True, True)
-    bias = np.concatenate([mu.ravel(), np.full(N_JOINTS * 3, 0.0, np.float32)]).astype(np.float32)
-    dense = Layer("dense", np.zeros((2 * N_JOINTS * 3, 2 * (size // 4) ** 2), np.float32), bias, 1, False, False)
+    net = constant_reading_net(mu, 0.0)
     return save_appearance(tmp_path_factory.mktemp("appearance") / "net.npz",
-                           AppearanceNet(size, (conv, dense), {"fixture": "standing"}))
+                           replace(net, meta={"fixture": "standing"}))

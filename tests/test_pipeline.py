@@ -4,11 +4,12 @@ silhouettes over a textured room, with the small fixture database."""
 import cv2
 import numpy as np
 import pytest
+from conftest import constant_reading_net
 
 from protocol import fk
 from protocol.motion import ground
-from protocol.skeleton import JOINT_INDEX, N_JOINTS, ROT_SLOT, Body, standing_pose
-from tracker_service.appearance import AppearanceNet, Layer, camera_joints
+from protocol.skeleton import JOINT_INDEX, ROT_SLOT, Body, standing_pose
+from tracker_service.appearance import camera_joints
 from tracker_service.body_models import body_model
 from tracker_service.camera import default_camera
 from tracker_service.given_body import given_body
@@ -76,15 +77,6 @@ def test_phases_and_outputs(small_db, rng: np.random.Generator) -> None:  # type
     assert np.median(errs) < 0.10
 
 
-def _constant_reading_net(mu: np.ndarray, size: int = 16) -> AppearanceNet:
-    """A network that reads ``mu`` (camera axes, units of height) whatever it sees, with a small
-    variance: one convolution, then a dense layer that ignores it and answers its bias."""
-    conv = Layer("conv", np.full((2, 4, 3, 3), 0.01, np.float32), np.zeros(2, np.float32), 2, True, True)
-    bias = np.concatenate([mu.ravel(), np.full(N_JOINTS * 3, -8.0)]).astype(np.float32)
-    dense = Layer("dense", np.zeros((2 * N_JOINTS * 3, 2 * (size // 4) ** 2), np.float32), bias, 1, False, False)
-    return AppearanceNet(size, (conv, dense), {"fixture": "constant"})
-
-
 def test_the_stature_is_measured_under_a_raised_hand(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     """A tall man waving with a hand above his head through the whole initialisation: the stature
     is measured on every frame (before session 28 on none: the head was never the silhouette's
@@ -96,7 +88,7 @@ def test_the_stature_is_measured_under_a_raised_hand(small_db, rng: np.random.Ge
     pose[3 + 3 * slot: 6 + 3 * slot] = [0.0, 0.0, 2.0]  # the left hand high above the head
     joints = fk(pose, subject)
     assert int(np.argmax(joints[:, 1])) == JOINT_INDEX["l_hand_tip"]
-    net = _constant_reading_net(camera_joints(joints, cam, subject.height))
+    net = constant_reading_net(camera_joints(joints, cam, subject.height), -8.0)  # sure of it
     cfg = TrackerConfig(background_frames=6, init_frames=4, body_candidates=("mMA", "mLA", "mTA"), appearance=net,
                         appearance_mirror=False)  # (a constant reading mirrored would be another pose)
     st = new_state(loaded.body)

@@ -62,7 +62,7 @@ class TrainConfig:
         Input side (pixels).
     width : int
         Channels of the first convolution (the others are 2, 4, 8 and 8 times it). 24 since session
-        28 (16 before: the wider network reads 5 % better at +4 ms a frame, docs/TRACKER.md).
+        28 (16 before: the wider network's joints are 5 % better at +1.7 ms a frame, docs/TRACKER.md).
     passes : tuple of (int, int)
         ``(seed_base, every)`` per pass over the training takes: each pass renders every take on
         another person, every ``every``-th frame.

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,7 +77,7 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
 
 
 def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], camera: Camera,
-                     db_body: Body, joints: NDArray[np.float64] | None = None) -> float:
+                     db_body: Body, joints: NDArray[np.floating[Any]] | None = None) -> float:
     """Standing height (metres) of the subject from the silhouette's vertical extent.
 
     The feet line gives the depth (``observed`` is the database body's placement at that depth:

@@ -26,7 +26,15 @@ from numpy.typing import NDArray
 from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, N_PARTS, Body
 
-from .appearance import AppearanceNet, HeadingWindow, in_view, joints_cost, predict_joints, propose_leaves_in_window
+from .appearance import (
+    AppearanceNet,
+    HeadingWindow,
+    camera_joints,
+    in_view,
+    joints_cost,
+    predict_joints,
+    propose_leaves_in_window,
+)
 from .background import BackgroundModel, BackgroundParams, learn_background, subtract, update_background
 from .body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from .camera import Camera
@@ -367,7 +375,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if phase == "initialising" and config.body_candidates and raw is not None:
         # measured whatever tops the silhouette, the head or a raised hand (as the network reads the
         # pose: it sees a raised hand better than the first frames' filter pose)
-        tops = seen[0] if seen is not None else fk(pose, db_body) / db_body.height
+        tops = seen[0] if seen is not None else camera_joints(fk(pose, db_body), camera, db_body.height)
         st = measured_stature(mask, raw, camera, db_body, tops)
         if np.isfinite(st):
             statures = (*statures, st)

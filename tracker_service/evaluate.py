@@ -9,6 +9,7 @@ after forced losses, speed per stage (the paper's Table 1) and distance evaluati
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -198,6 +199,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         acc_e: list[NDArray[np.float64]] = []
         acc_t: list[NDArray[np.float64]] = []
         present = 0
+        digest = hashlib.sha256()  # the published pose stream, for regression checks
         t_pre, t_est, t_tot = [], [], []
         init_ms = 0.0
         evals: list[tuple[int, ...]] = []
@@ -220,6 +222,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
                 continue
             tracked += 1
             jt, je = fr.truth.joints, res.joints
+            digest.update(np.ascontiguousarray(je, dtype=np.float64).tobytes())
             e = float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean())
             errs.append(e)
             if (was_tracking and res.phase == "tracking" and lost_at is None and not res.reinitialised
@@ -287,4 +290,5 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         "database_body": loaded.body.name,
         "subject_height_m": round(float(scene.subject.spec.height), 3),
         "reinitialisations": int(state.reinits),
+        "poses_sha256": digest.hexdigest(),
     }

@@ -39,12 +39,12 @@ sys.path.insert(0, str(ROOT))
 
 from _host import host_probe  # noqa: E402  (bench/ is the script's folder)
 
-from cloth_client.cloth import ClothParams, build_model, initial_state, step  # noqa: E402
-from cloth_client.collision import CapsuleTrack  # noqa: E402
-from cloth_client.driver import DriverConfig  # noqa: E402
-from cloth_client.garment import DEFAULT_PARTICLES, make_sheet  # noqa: E402
-from cloth_client.offline import simulate_motion  # noqa: E402
-from protocol.mocap_data import index_entries, mocap_root  # noqa: E402
+from cloth_client.app.offline import simulate_motion  # noqa: E402
+from cloth_client.contact.collision import CapsuleTrack  # noqa: E402
+from cloth_client.solver.cloth import ClothParams, build_model, initial_state, step  # noqa: E402
+from cloth_client.solver.driver import DriverConfig  # noqa: E402
+from cloth_client.solver.garment import DEFAULT_PARTICLES, make_sheet  # noqa: E402
+from protocol.formats.mocap_data import index_entries, mocap_root  # noqa: E402
 from protocol.motion import load_motion  # noqa: E402
 
 #: Recording used for the real-time factor (a 63 s dance with spins and crouches).

@@ -19,8 +19,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cloth_client.offline import simulate_motion  # noqa: E402
-from protocol.mocap_data import mocap_root  # noqa: E402
+from cloth_client.app.offline import simulate_motion  # noqa: E402
+from protocol.formats.mocap_data import mocap_root  # noqa: E402
 from protocol.motion import load_motion  # noqa: E402
 
 SAMPLE = [f"bandai/dataset-{name}.bvh" for name in (

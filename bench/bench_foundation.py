@@ -19,10 +19,10 @@ import numpy as np
 from tqdm import tqdm
 
 from protocol import POSE_SIZE, default_body, fk
-from protocol.bvh import read_bvh
-from protocol.mocap_data import index_entries, mocap_root
+from protocol.formats.bvh import read_bvh
+from protocol.formats.mocap_data import index_entries, mocap_root
 from protocol.motion import load_motion
-from tracker_service.pose_pruning import prune_poses
+from tracker_service.templates.pruning import prune_poses
 
 
 def _best_of(fn, repeats: int = 5) -> float:  # type: ignore[no-untyped-def]

@@ -48,8 +48,8 @@ from game_client.game import Game, PlayerInput
 from game_client.gestures import GestureRecognizer, recognize
 from game_client.round import GameRound
 from game_client.variants import Label, Variant, load_labels, variant_motion
+from protocol.formats.mocap_data import index_entries
 from protocol.kinematics import fk
-from protocol.mocap_data import index_entries
 
 
 def _ms(x: float) -> float | None:

@@ -35,8 +35,8 @@ from game_client.evaluation import allowed_gestures, degrade, expected_gestures,
 from game_client.features import FeatureExtractor, FrameFeatures
 from game_client.gestures import GestureRecognizer, RecognizerConfig
 from game_client.variants import load_labels, variant_labels, variant_motion
+from protocol.formats.mocap_data import index_entries
 from protocol.kinematics import fk
-from protocol.mocap_data import index_entries
 
 #: (gesture, parameter, permissive limit); the strict side goes as far the other way.
 SCANS: tuple[tuple[str, str, float], ...] = (

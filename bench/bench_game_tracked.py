@@ -12,10 +12,10 @@ so it varies body size and shape, outfit, room and lighting), the motion is
 
 1. preceded by ``--lead-in`` seconds of its first pose (the player standing in front of the camera
    while the tracker learns the background and locks on; the labels move by as much),
-2. rendered as synthetic video by :class:`tracker_service.scene.SyntheticScene` (320x240, 30 Hz,
+2. rendered as synthetic video by :class:`tracker_service.scene.synthetic.SyntheticScene` (320x240, 30 Hz,
    sensor noise, 12 empty-room frames first, the person facing the camera),
-3. tracked frame by frame from the pixels with :func:`tracker_service.pipeline.process_frame` (the
-   loop of :func:`tracker_service.evaluate.evaluate_motion`, without forced losses; settings as
+3. tracked frame by frame from the pixels with :func:`tracker_service.pipeline.process.process_frame` (the
+   loop of :func:`tracker_service.app.evaluate.evaluate_motion`, without forced losses; settings as
    ``mocap-tracker eval``: xor distance, occlusion dynamics, body model chosen automatically, and the
    appearance cue when its network file exists, as ``mocap-tracker run`` does — since session 27;
    ``--appearance off`` is the tracker without it, which is what this benchmark measured before.
@@ -59,13 +59,13 @@ from game_client.gestures import GestureEvent, GestureRecognizer, RecognizerConf
 from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
 from protocol.motion import Motion
 from protocol.skeleton import N_JOINTS, N_PARTS
-from tracker_service.appearance import AppearanceNet
-from tracker_service.body_models import BODY_MODELS
-from tracker_service.pipeline import TrackerConfig, new_state, process_frame
-from tracker_service.scene import SceneConfig, SyntheticScene
-from tracker_service.template_db import LoadedDatabase
-from tracker_service.tracker_cli import ensure_appearance, ensure_db
-from tracker_service.tree_filter import FilterParams
+from tracker_service.app.tracker_cli import ensure_appearance, ensure_db
+from tracker_service.body.family import BODY_MODELS
+from tracker_service.cues.appearance import AppearanceNet
+from tracker_service.estimators.tree_filter.filter import FilterParams
+from tracker_service.pipeline.process import TrackerConfig, new_state, process_frame
+from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
+from tracker_service.templates.database import LoadedDatabase
 
 #: Speeds of the variants, cycled (1.0 = as authored).
 SPEEDS: tuple[float, ...] = (1.0, 0.8, 1.25)

@@ -25,23 +25,23 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from protocol.formats.mocap_data import mocap_root
 from protocol.kinematics import fk
-from protocol.mocap_data import mocap_root
 from protocol.motion import load_motion
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
-from tracker_service.body_mesh import BodyMesh
-from tracker_service.body_models import BODY_MODELS, body_model
-from tracker_service.camera import default_camera
-from tracker_service.pose_pruning import prune_poses
-from tracker_service.scene import SceneConfig, SyntheticScene
-from tracker_service.scene_gl import MeshRasterizer
-from tracker_service.silhouette_render import (
+from tracker_service.body.family import BODY_MODELS, body_model
+from tracker_service.body.mesh import BodyMesh
+from tracker_service.body.raster import (
     render_labels,
     render_silhouette,
     render_silhouette_cv2,
     render_silhouettes,
     silhouette_runs_batch,
 )
+from tracker_service.camera import default_camera
+from tracker_service.scene.gl import MeshRasterizer
+from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
+from tracker_service.templates.pruning import prune_poses
 
 RECORDINGS = ("bandai/dataset-1_dance-short_normal_001.bvh", "bandai/dataset-1_kick_normal_001.bvh",
               "bandai/dataset-1_slash_normal_001.bvh", "bandai/dataset-1_punch_normal_002.bvh")

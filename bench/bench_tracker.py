@@ -30,21 +30,21 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from protocol import fk
-from protocol.mocap_data import index_entries, mocap_root
+from protocol.formats.mocap_data import index_entries, mocap_root
 from protocol.motion import ground, load_motion
-from tracker_service.body_models import BODY_MODELS
+from tracker_service.app.evaluate import EvalOptions, evaluate_motion
+from tracker_service.app.tracker_cli import ensure_appearance, ensure_db
+from tracker_service.body.family import BODY_MODELS
+from tracker_service.body.raster import render_silhouette, silhouette_runs_batch
+from tracker_service.build.database import is_held_out
 from tracker_service.camera import default_camera
-from tracker_service.db_build import is_held_out
-from tracker_service.evaluate import EvalOptions, evaluate_motion
-from tracker_service.features import preprocess
-from tracker_service.pipeline import TrackerConfig
-from tracker_service.placement import observed_placement
-from tracker_service.silhouette_distance import RunSet
-from tracker_service.silhouette_render import render_silhouette, silhouette_runs_batch
-from tracker_service.template_db import default_db_dir, load_db
-from tracker_service.tracker_cli import ensure_appearance, ensure_db
-from tracker_service.tree_filter import FilterDB, FilterParams, initial_state, step
-from tracker_service.warmup import warm_up
+from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
+from tracker_service.pipeline.process import TrackerConfig
+from tracker_service.pipeline.warmup import warm_up
+from tracker_service.silhouette.distance import RunSet
+from tracker_service.silhouette.features import preprocess
+from tracker_service.silhouette.placement import observed_placement
+from tracker_service.templates.database import default_db_dir, load_db
 
 
 def _rss_mb() -> float:

@@ -20,11 +20,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cloth_client.cloth import structural_strain  # noqa: E402
-from cloth_client.collision import round_cone_np  # noqa: E402
-from cloth_client.driver import ClothDriver  # noqa: E402
-from cloth_client.garment import make_garment  # noqa: E402
-from protocol.mocap_data import mocap_root  # noqa: E402
+from cloth_client.contact.collision import round_cone_np  # noqa: E402
+from cloth_client.solver.cloth import structural_strain  # noqa: E402
+from cloth_client.solver.driver import ClothDriver  # noqa: E402
+from cloth_client.solver.garment import make_garment  # noqa: E402
+from protocol.formats.mocap_data import mocap_root  # noqa: E402
 from protocol.motion import load_motion  # noqa: E402
 from protocol.skeleton import CAPSULE_INDEX  # noqa: E402
 

@@ -15,7 +15,7 @@ Usage::
 choice (the templates' scale; the output skeleton stays the selected model's): an upper bound of
 what a better height estimate can give (session 12: -0.18 / +0.02 / -0.20 cm on subjects 11 / 7 / 3
 over all 51 held-out takes). A diagnostic, not a test: it takes minutes. No forced losses
-(the loop is :func:`tracker_service.evaluate.evaluate_motion`'s, with a per-frame hook).
+(the loop is :func:`tracker_service.app.evaluate.evaluate_motion`'s, with a per-frame hook).
 """
 
 from __future__ import annotations
@@ -28,17 +28,18 @@ import numpy as np
 from tqdm import tqdm
 
 from protocol import fk
-from protocol.mocap_data import index_entries, mocap_root
+from protocol.formats.mocap_data import index_entries, mocap_root
 from protocol.motion import load_motion
-from tracker_service import body_selection, pipeline
-from tracker_service.body_models import BODY_MODELS
-from tracker_service.db_build import is_held_out
-from tracker_service.evaluate import EvalOptions, evaluate_motion
-from tracker_service.filter_model import Estimate
-from tracker_service.pipeline import FrameResult, TrackerConfig, TrackerState
-from tracker_service.scene import SceneFrame
-from tracker_service.scene_subject import random_subject_spec
-from tracker_service.tracker_cli import ensure_db
+from tracker_service.app.evaluate import EvalOptions, evaluate_motion
+from tracker_service.app.tracker_cli import ensure_db
+from tracker_service.body.family import BODY_MODELS
+from tracker_service.build.database import is_held_out
+from tracker_service.estimators.tree_filter.model import Estimate
+from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState
+from tracker_service.pipeline import body_selection as body_selection
+from tracker_service.pipeline import process as pipeline
+from tracker_service.scene.subject import random_subject_spec
+from tracker_service.scene.synthetic import SceneFrame
 
 LEGS = [16, 17, 18, 19, 20, 21, 22, 23]
 ARMS = [7, 8, 9, 10, 12, 13, 14, 15]
@@ -77,7 +78,7 @@ def main() -> int:
         return st, est
 
     pipeline.step = keep  # type: ignore[assignment]
-    # the scene's subject is drawn from the seed alone (tracker_service.scene.SyntheticScene)
+    # the scene's subject is drawn from the seed alone (tracker_service.scene.synthetic.SyntheticScene)
     subject_height = random_subject_spec(np.random.default_rng([args.seed, 0])).height
     if args.true_height:
         choose = body_selection.BodyChoice.from_scores

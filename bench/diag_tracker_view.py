@@ -26,15 +26,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.mocap_data import index_entries, mocap_root
+from protocol.formats.mocap_data import index_entries, mocap_root
 from protocol.motion import load_motion
 from protocol.skeleton import PARENTS
-from tracker_service.body_models import BODY_MODELS
-from tracker_service.db_build import is_held_out
-from tracker_service.evaluate import EvalOptions, evaluate_motion
-from tracker_service.pipeline import FrameResult, TrackerConfig, TrackerState
-from tracker_service.scene import SceneFrame
-from tracker_service.tracker_cli import ensure_db
+from tracker_service.app.evaluate import EvalOptions, evaluate_motion
+from tracker_service.app.tracker_cli import ensure_db
+from tracker_service.body.family import BODY_MODELS
+from tracker_service.build.database import is_held_out
+from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState
+from tracker_service.scene.synthetic import SceneFrame
 
 
 def _draw(img: NDArray[np.uint8], pts: NDArray[np.float64], colour: tuple[int, int, int]) -> None:

@@ -1,5 +1,5 @@
-"""``python -m cloth_client``: the ``mocap-cloth`` command line (see :mod:`cloth_client.cli`)."""
+"""``python -m cloth_client``: the ``mocap-cloth`` command line (see :mod:`cloth_client.app.cli`)."""
 
-from .cli import main
+from cloth_client.app.cli import main
 
 raise SystemExit(main())

@@ -28,11 +28,11 @@ from typing import IO, Any
 
 import zenoh
 
-from protocol.codec import ProtocolError, decode
-from protocol.game_messages import GameEvent, GameEventKind, GamePhase, GameState, encode_game, pack_projectiles
-from protocol.keys import DEFAULT_TRACKER_ID, body_key, game_event_key, game_state_key, pose_key, validate_id
-from protocol.messages import BodyInfo, PoseFrame
-from protocol.session import open_session, undeclare_quietly
+from protocol.net.session import open_session, undeclare_quietly
+from protocol.wire.codec import ProtocolError, decode
+from protocol.wire.game_messages import GameEvent, GameEventKind, GamePhase, GameState, encode_game, pack_projectiles
+from protocol.wire.keys import DEFAULT_TRACKER_ID, body_key, game_event_key, game_state_key, pose_key, validate_id
+from protocol.wire.messages import BodyInfo, PoseFrame
 
 from .game import GameConfig, GameRecord, GameSnapshot
 from .gestures import GestureEvent
@@ -141,7 +141,7 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
     Parameters
     ----------
     conf : zenoh.Config
-        Session configuration (subscriber role, see :mod:`protocol.session`).
+        Session configuration (subscriber role, see :mod:`protocol.net.session`).
     options : AppOptions
     stop : threading.Event
         Set it (e.g. from a signal handler) to end the run.

@@ -26,13 +26,13 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from protocol.cli_args import positive_float as _positive_float
-from protocol.cli_args import positive_int as _positive_int
-from protocol.codec import ProtocolError
-from protocol.keys import ANY, DEFAULT_TRACKER_ID, validate_id
 from protocol.kinematics import fk
 from protocol.motion import Motion, load_motion, resample
-from protocol.session import add_zenoh_args, config_from_args, stop_on_signals
+from protocol.net.cli_args import positive_float as _positive_float
+from protocol.net.cli_args import positive_int as _positive_int
+from protocol.net.session import add_zenoh_args, config_from_args, stop_on_signals
+from protocol.wire.codec import ProtocolError
+from protocol.wire.keys import ANY, DEFAULT_TRACKER_ID, validate_id
 
 __all__ = ["build_parser", "main"]
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from protocol.gesture_script import euler_of, parse_script, script_poses
+from protocol.formats.gesture_script import euler_of, parse_script, script_poses
 from protocol.skeleton import ROT_JOINTS, default_body, standing_pose
 
 from .game import GameConfig

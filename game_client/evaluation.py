@@ -250,11 +250,11 @@ def allowed_gestures(tags: Iterable[str]) -> frozenset[str]:
 def recording(path: str, fps: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Frame times ``(N,)``, joints ``(N, 24, 3)`` and body height of a shared recording.
 
-    ``path`` is relative to :func:`protocol.mocap_data.mocap_root`; the motion is retargeted onto the
+    ``path`` is relative to :func:`protocol.formats.mocap_data.mocap_root`; the motion is retargeted onto the
     default body by :func:`protocol.motion.load_motion` (optionally resampled to ``fps``).
     """
+    from protocol.formats.mocap_data import recording_path
     from protocol.kinematics import fk
-    from protocol.mocap_data import recording_path
     from protocol.motion import load_motion
 
     m = load_motion(recording_path(path), fps=fps)

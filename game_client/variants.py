@@ -1,6 +1,6 @@
 """Bundled gesture scripts, their ground truth, and variants (speed, amplitude, body, facing, noise).
 
-The scripts in ``game_client/scripts/`` use the Foundation's format (:mod:`protocol.gesture_script`);
+The scripts in ``game_client/scripts/`` use the Foundation's format (:mod:`protocol.formats.gesture_script`);
 ``labels.toml`` next to them lists the gestures each contains and when each one is complete.
 A :class:`Variant` rewrites a script's TOML text before it is parsed, so every variant is itself a
 valid script (``write_variant`` saves one for ``mocap-tracker replay --script``):
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-from protocol.gesture_script import parse_script, script_poses
+from protocol.formats.gesture_script import parse_script, script_poses
 from protocol.motion import Motion
 from protocol.skeleton import body_from_measurements, default_body
 

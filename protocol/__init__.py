@@ -1,8 +1,8 @@
 """The contract every process shares: skeleton, forward kinematics, messages, codec, Zenoh keys and
 session configuration, motion files (BVH, gesture scripts)."""
 
-from .kinematics import fk, fk_global
-from .skeleton import (
+from protocol.kinematics import fk, fk_global
+from protocol.skeleton import (
     JOINT_NAMES,
     N_JOINTS,
     N_PARTS,

@@ -24,12 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from .cli_args import positive_float as _positive
-from .cli_args import positive_int as _count
-from .codec import decode
-from .keys import ANY, pose_key, split_key, status_key, validate_id
-from .messages import PoseFrame, TrackerStatus
-from .session import add_zenoh_args, config_from_args, open_session, stop_on_signals, undeclare_quietly
+from protocol.net.cli_args import positive_float as _positive
+from protocol.net.cli_args import positive_int as _count
+from protocol.net.session import add_zenoh_args, config_from_args, open_session, stop_on_signals, undeclare_quietly
+from protocol.wire.codec import decode
+from protocol.wire.keys import ANY, pose_key, split_key, status_key, validate_id
+from protocol.wire.messages import PoseFrame, TrackerStatus
 
 PROG = "python -m protocol"
 log = logging.getLogger("protocol.echo")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .rotations import rotvec_to_matrix
-from .skeleton import N_JOINTS, PARENTS, POSE_SIZE, ROT_SLOT, Body
+from protocol.rotations import rotvec_to_matrix
+from protocol.skeleton import N_JOINTS, PARENTS, POSE_SIZE, ROT_SLOT, Body
 
 __all__ = ["fk", "fk_global"]
 

@@ -9,11 +9,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .bvh import BvhFile, read_bvh
-from .kinematics import fk
-from .retarget import UNITS, artifact_mask, detect_armature, retarget, source_skeleton
-from .rotations import euler_to_matrix, matrix_to_quat, matrix_to_rotvec, quat_slerp, quat_to_matrix, rotvec_to_matrix
-from .skeleton import (
+from protocol.formats.bvh import BvhFile, read_bvh
+from protocol.formats.retarget import UNITS, artifact_mask, detect_armature, retarget, source_skeleton
+from protocol.kinematics import fk
+from protocol.rotations import (
+    euler_to_matrix,
+    matrix_to_quat,
+    matrix_to_rotvec,
+    quat_slerp,
+    quat_to_matrix,
+    rotvec_to_matrix,
+)
+from protocol.skeleton import (
     CAPSULE_INDEX,
     END_JOINTS,
     JOINT_INDEX,
@@ -181,7 +188,7 @@ def load_bvh_motion(path: str | Path, *, body: Body | None = None, fps: float | 
     fps : float, optional
         Resample to this rate.
     scale : float, optional
-        File units -> metres (detected when omitted, see :func:`protocol.retarget.source_skeleton`).
+        File units -> metres (detected when omitted, see :func:`protocol.formats.retarget.source_skeleton`).
     source_fps : float, optional
         The recording's true frame rate when the file's ``Frame Time`` is wrong (known
         converter mistakes of an armature are corrected automatically).
@@ -214,7 +221,7 @@ def load_bvh_motion(path: str | Path, *, body: Body | None = None, fps: float | 
 
 
 def is_native(bvh: BvhFile) -> bool:
-    """True if the file was written by :func:`protocol.bvh.write_bvh` for our skeleton (same joint
+    """True if the file was written by :func:`protocol.formats.bvh.write_bvh` for our skeleton (same joint
     names and tree, ZXY channels): it is then read exactly, without retargeting."""
     names = [j.name for j in bvh.joints]
     if names != [n for n in JOINT_NAMES if n not in END_JOINTS]:
@@ -282,7 +289,7 @@ def load_motion(path: str | Path, *, fps: float | None = None, body: Body | None
     if suffix == ".bvh":
         return load_bvh_motion(p, body=body, fps=fps)
     if suffix == ".toml":
-        from .gesture_script import load_script
+        from protocol.formats.gesture_script import load_script
 
         return load_script(p, fps=fps, body=body)
     raise ValueError(f"{p}: unknown motion file type {suffix!r} (expected .bvh or .toml)")

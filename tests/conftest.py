@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol.mocap_data import IndexEntry, index_entries, mocap_root
+from protocol.formats.mocap_data import IndexEntry, index_entries, mocap_root
 
 
 @pytest.fixture(scope="session")
@@ -33,10 +33,10 @@ TAKES = ("dataset-2_raise-up-both-hands_normal_001.bvh", "dataset-2_raise-up-bot
 def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
     """A small template database (4 real takes, body mMA) saved to a temporary folder:
     ``(FilterDB, Body, motions, stats, path)``."""
-    from tracker_service.body_models import body_model
+    from tracker_service.body.family import body_model
+    from tracker_service.build.database import DbBuildConfig, build_filter_db, training_motions
     from tracker_service.camera import default_camera
-    from tracker_service.db_build import DbBuildConfig, build_filter_db, training_motions
-    from tracker_service.template_db import save_db
+    from tracker_service.templates.database import save_db
 
     body = body_model("mMA").body
     entries = [e for e in mocap_index if e.path.split("/")[-1] in TAKES]
@@ -47,12 +47,12 @@ def small_db(mocap_index: list[IndexEntry], tmp_path_factory: pytest.TempPathFac
     return db, body, motions, stats, path
 
 
-def constant_reading_net(mu: np.ndarray, log_var: float, size: int = 16):  # type: ignore[no-untyped-def]
-    """An appearance network (:class:`tracker_service.appearance.AppearanceNet`) that reads ``mu``
+def constant_reading_net(mu: np.ndarray, log_var: float = -6.0, size: int = 16):  # type: ignore[no-untyped-def]
+    """An appearance network (:class:`tracker_service.cues.appearance.AppearanceNet`) that reads ``mu``
     (``(J, 3)``, camera axes over the height) with log variance ``log_var`` whatever it sees: one
     convolution, then a dense layer that ignores it and answers its bias."""
     from protocol.skeleton import N_JOINTS
-    from tracker_service.appearance import AppearanceNet, Layer
+    from tracker_service.cues.appearance import AppearanceNet, Layer
 
     conv = Layer("conv", np.full((2, 4, 3, 3), 0.01, np.float32), np.zeros(2, np.float32), 2, True, True)
     bias = np.concatenate([np.asarray(mu).ravel(), np.full(N_JOINTS * 3, log_var)]).astype(np.float32)
@@ -62,16 +62,16 @@ def constant_reading_net(mu: np.ndarray, log_var: float, size: int = 16):  # typ
 
 @pytest.fixture(scope="session")
 def weak_appearance_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """An appearance network file (:mod:`tracker_service.appearance`) that always sees a person
+    """An appearance network file (:mod:`tracker_service.cues.appearance`) that always sees a person
     standing in the T-pose, with a wide variance (:func:`constant_reading_net`): the cue's whole
     path runs without the half hour of rendering and training a real network needs."""
     from dataclasses import replace
 
     from protocol import fk
     from protocol.skeleton import POSE_SIZE
-    from tracker_service.appearance import camera_joints, save_appearance
-    from tracker_service.body_models import body_model
+    from tracker_service.body.family import body_model
     from tracker_service.camera import default_camera
+    from tracker_service.cues.appearance import camera_joints, save_appearance
 
     body = body_model("mMA").body
     mu = camera_joints(fk(np.zeros(POSE_SIZE), body), default_camera(), body.height)

@@ -1,0 +1,1 @@
+"""cloth_client.solver."""

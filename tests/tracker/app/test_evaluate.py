@@ -1,0 +1,58 @@
+import math
+
+import numpy as np
+import pytest
+
+from tracker_service.app.evaluate import acceleration_error, reacquisition_times
+
+FPS = 30.0
+
+
+def _clip(err: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    return np.arange(len(err)) / FPS, np.asarray(err, float)
+
+
+def test_back_within_10cm_counts_from_the_loss_to_the_first_good_frame() -> None:
+    err = [0.05] * 30 + [0.40] * 10 + [0.06] * 40  # loss at frame 29; good again from frame 40
+    t, e = _clip(err)
+    (dt,) = reacquisition_times(t, e, [29], FPS)
+    assert dt == pytest.approx(11 / FPS)
+
+
+def test_a_track_worse_than_10cm_is_back_at_its_own_accuracy() -> None:
+    err = [0.14] * 30 + [0.45] * 6 + [0.16] * 40  # 0.16 < 1.25 x 0.14
+    t, e = _clip(err)
+    assert reacquisition_times(t, e, [29], FPS) == [pytest.approx(7 / FPS)]
+    assert reacquisition_times(t, e, [29], FPS, relative=1.0) == [math.inf]  # never within 14 cm
+
+
+def test_isolated_good_frames_are_not_a_reacquisition() -> None:
+    err = [0.05] * 30 + [0.3, 0.05, 0.05, 0.3] * 8 + [0.05] * 30
+    t, e = _clip(err)
+    (dt,) = reacquisition_times(t, e, [29], FPS)
+    assert dt == pytest.approx(33 / FPS)
+
+
+def test_a_loss_not_yet_back_in_the_last_second_is_not_judged() -> None:
+    t, e = _clip([0.05] * 62 + [0.4] * 18)
+    assert reacquisition_times(t, e, [61], FPS) == []  # 0.6 s left
+    t, e = _clip([0.05] * 40 + [0.4] * 40)
+    assert reacquisition_times(t, e, [39], FPS) == [math.inf]  # 1.33 s left and never back
+    quick = [0.05] * 70 + [0.4, 0.05, 0.05, 0.05, 0.05]
+    t, e = _clip(quick)
+    assert reacquisition_times(t, e, [69], FPS) == [pytest.approx(2 / FPS)]  # back with 0.13 s left
+
+
+def test_acceleration_error_is_zero_for_a_constant_offset_and_counts_only_consecutive_frames() -> None:
+    rng = np.random.default_rng(0)
+    true = np.cumsum(rng.normal(0.0, 0.01, (10, 4, 3)), axis=0)
+    frames = np.arange(10)
+    assert acceleration_error(frames, true + 0.05, true) == pytest.approx(0.0, abs=1e-12)  # a bias is no jitter
+    est = true.copy()
+    est[5, 2] += np.array([0.03, 0.0, 0.04])  # one joint pops by 5 cm on one frame
+    # the pop's second difference is 5, -10, 5 cm at frames 4, 5, 6 on one of 4 joints, over 8 triples
+    assert acceleration_error(frames, est, true) == pytest.approx((0.05 + 0.10 + 0.05) / 4 / 8)
+    gap = np.array([0, 1, 2, 4, 5, 7])  # only (0, 1, 2) is three consecutive frames
+    assert acceleration_error(gap, est[:6], true[:6]) == pytest.approx(0.0, abs=1e-12)
+    assert math.isnan(acceleration_error(np.array([0, 2, 4]), est[:3], true[:3]))
+    assert math.isnan(acceleration_error(np.arange(2), est[:2], true[:2]))

@@ -1,0 +1,151 @@
+"""`mocap-tracker build-db --scripts DIR`: which files of a folder are gesture scripts; the tracker
+options; `train-appearance`."""
+
+import argparse
+from pathlib import Path
+
+import pytest
+
+from tracker_service.app.tracker_cli import _gesture_scripts
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_game_scripts_folder_skips_the_label_file(capsys: pytest.CaptureFixture[str]) -> None:
+    files = _gesture_scripts([str(REPO / "game_client" / "scripts")])
+    names = {p.name for p in files}
+    assert {"strike.toml", "fire_ring.toml", "transform.toml", "crouch.toml"} <= names
+    assert "labels.toml" not in names
+    assert "labels.toml" in capsys.readouterr().err
+
+
+def test_broken_toml_is_kept_for_the_reader_to_report(tmp_path: Path) -> None:
+    (tmp_path / "bad.toml").write_text("[[key]\nt = ")
+    (tmp_path / "ok.toml").write_text("[[key]]\nt = 0.0\n")
+    (tmp_path / "other.toml").write_text("title = 'not a script'\n")
+    assert [p.name for p in _gesture_scripts([str(tmp_path)])] == ["bad.toml", "ok.toml"]
+
+
+def ns(**kw: object) -> argparse.Namespace:
+    """The tracker options of ``run`` / ``eval`` with their defaults, overridden by ``kw`` (no
+    appearance network unless given: the tests do not depend on a trained one)."""
+    base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
+            "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off",
+            "no_refine": False, "no_proportions": False, "no_reading_filter": False}
+    return argparse.Namespace(**(base | kw))
+
+
+def test_tracker_options_build_the_config() -> None:
+    import math
+
+    from tracker_service.app.tracker_cli import _config
+
+    cfg = _config(ns())
+    assert cfg.filter.max_heading is None and cfg.skin is not None and cfg.smoothing is not None
+    assert cfg.use_mean_pose and cfg.filter.mean_temperature > 1.0
+    assert not _config(ns(pose="map")).use_mean_pose
+    cfg = _config(ns(max_heading=35.0, no_skin=True, no_smoothing=True, body="wTY"))
+    assert cfg.filter.max_heading == pytest.approx(math.radians(35.0))
+    assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)
+    assert cfg.shoes is not None and _config(ns(no_shoes=True)).shoes is None
+    assert cfg.refine is not None and _config(ns(no_refine=True)).refine is None
+    assert cfg.proportions is not None and _config(ns(no_proportions=True)).proportions is None
+    assert cfg.reading_filter is not None and _config(ns(no_reading_filter=True)).reading_filter is None
+    for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
+        with pytest.raises(ValueError):
+            _config(ns(**bad))
+    # the user's measurements build the body; no selection
+    cfg = _config(ns(measurements="height=1.83,group=men,leg=1.04"))
+    assert cfg.body_candidates == () and cfg.body is not None
+    assert cfg.body.height == pytest.approx(1.83)
+    assert _config(ns(measurements="subject", measurements_subject=True)).body is None  # eval: with the scene
+    for bad in ({"measurements": "subject"}, {"measurements": "subject:leg"},  # run: not the scene's person
+                {"measurements": "subjectively", "measurements_subject": True},
+                {"measurements": "subject:inseam", "measurements_subject": True}):
+        with pytest.raises(ValueError):
+            _config(ns(**bad))
+    with pytest.raises(ValueError, match="not both"):
+        _config(ns(measurements="height=1.7", body="mMA"))
+    with pytest.raises(ValueError, match="leg"):
+        _config(ns(measurements="height=1.7,leg=2"))
+    from tracker_service.app.tracker_cli import _subject_keys
+
+    assert _subject_keys(None) == () and _subject_keys("height=1.7") == () and _subject_keys("subjects") == ()
+    assert _subject_keys("subject:height,leg") == ("height", "leg") and "arm" in _subject_keys("subject")
+    with pytest.raises(ValueError):
+        _subject_keys("subject:inseam")
+
+
+def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> None:
+    from tracker_service.app.tracker_cli import _config, _passes
+    from tracker_service.cues.appearance import AppearanceError
+
+    assert _config(ns()).appearance is None
+    net = _config(ns(appearance=str(weak_appearance_net))).appearance
+    assert net is not None and net.meta == {"fixture": "standing"}
+    with pytest.raises(AppearanceError, match="train-appearance"):  # a named file must exist
+        _config(ns(appearance=str(tmp_path / "none.npz")))
+    (tmp_path / "junk.npz").write_text("not a network")
+    with pytest.raises(AppearanceError, match="corrupt"):
+        _config(ns(appearance=str(tmp_path / "junk.npz")))
+    assert _passes("1000:3,2000:2") == (((1000, 3), (2000, 2)),)
+    assert _passes("1000:3,2000:2;5000:2") == (((1000, 3), (2000, 2)), ((5000, 2),))  # one list per network
+    for bad in ("", "1000", "a:b", "5:0", "1000:3;", ";1000:3"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _passes(bad)
+
+
+@pytest.mark.slow
+def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
+    """``mocap-tracker train-appearance`` on two takes and a folder of one gesture script, one short
+    pass and one posture-varied pass per network, one epoch: an ensemble of two networks in one file
+    the tracker loads, and its rendered views cached beside it (the script's by name)."""
+    import shutil
+    import subprocess
+    import sys
+
+    from tracker_service.cues.appearance import load_appearance
+
+    out = tmp_path / "app" / "net.npz"
+    scripts = tmp_path / "gestures" / "scripts"
+    scripts.mkdir(parents=True)
+    shutil.copy(REPO / "game_client" / "scripts" / "crouch.toml", scripts)
+    (scripts / "labels.toml").write_text("title = 'not a script'\n")
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--takes", "2", "--passes",
+                        "7:60;8:60", "--posture-passes", "9:60;10:60", "--epochs", "1", "--width", "8", "--jobs", "1",
+                        "--scripts", str(scripts), "--out", str(out)],
+                       cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "appearance network 2:" in r.stdout and "1 gesture scripts" in r.stdout and out.is_file()
+    net = load_appearance(out)
+    assert net.size == 64 and net.meta["training_takes"] == 2 and len(net.networks) == 2
+    assert [Path(p).name for p in net.meta["scripts"]] == ["crouch.toml"]
+    assert [m["config"]["passes"] for m in net.meta["members"]] == [[[7, 60]], [[8, 60]]]
+    assert [m["config"]["posture_passes"] for m in net.meta["members"]] == [[[9, 60]], [[10, 60]]]
+    assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
+    assert [m["config"]["width"] for m in net.meta["members"]] == [8, 8]
+    assert net.networks[0][0].weight.shape[0] == 8  # the first convolution's channels
+    for folder in ("7_60_64", "8_60_64"):
+        names = sorted(p.name for p in (out.parent / "data" / folder).glob("*.npz"))
+        assert len(names) == 3 and names[-1].startswith("script_crouch_900_")
+    for folder in ("9_60_64_posture1_s0.5t25k70", "10_60_64_posture1_s0.5t25k70"):  # posture passes, cached apart
+        assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--members", "3", "--out",
+                        str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "--passes" in r.stderr and "Traceback" not in r.stderr
+    for flags in (["--no-posture", "--posture-passes", "9:60"], ["--no-scripts", "--scripts", str(scripts)]):
+        r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", *flags, "--out",
+                            str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "not allowed with" in r.stderr  # contradictory flags are refused
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:60",
+                        "--posture-passes", "9:60;10:60", "--out", str(tmp_path / "never.npz")],
+                       cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "posture pass list" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--passes", "7:0"],
+                       cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "EVERY" in r.stderr
+    for flag in ("--epochs", "--takes", "--jobs", "--members", "--width"):  # 0 is an error, not "the default"
+        r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", flag, "0", "--out",
+                            str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and f"{flag} must be >= 1" in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "never.npz").exists()

@@ -1,0 +1,137 @@
+import cv2
+import numpy as np
+import pytest
+
+from tracker_service.silhouette.background import (
+    BackgroundParams,
+    clean_mask,
+    clean_mask_reference,
+    learn_background,
+    raw_foreground,
+    raw_foreground_reference,
+    subtract,
+    update_background,
+)
+
+
+def _room(rng: np.random.Generator, h: int = 120, w: int = 160) -> np.ndarray:
+    img = np.zeros((h, w, 3), np.float32)
+    img[:] = (150, 160, 170)
+    img[: h // 2] = (120, 140, 180)  # wall / floor
+    for _ in range(6):  # furniture
+        x, y = rng.integers(0, w - 30), rng.integers(0, h - 30)
+        img[y: y + 25, x: x + 28] = rng.uniform(40, 220, 3)
+    img += rng.normal(0, 6, (h, w, 1))  # texture
+    return np.clip(img, 0, 255)
+
+
+def _frames(rng: np.random.Generator, base: np.ndarray, n: int, gain: float = 1.0) -> np.ndarray:
+    return np.clip(base[None] * gain + rng.normal(0, 2.0, (n, *base.shape)), 0, 255).astype(np.uint8)
+
+
+def _person_mask(h: int = 120, w: int = 160) -> np.ndarray:
+    m = np.zeros((h, w), np.uint8)
+    cv2.ellipse(m, (80, 55), (12, 25), 0, 0, 360, 1, -1)
+    cv2.circle(m, (80, 24), 8, 1, -1)
+    cv2.line(m, (75, 75), (72, 112), 1, 6)
+    cv2.line(m, (85, 75), (88, 112), 1, 6)
+    return m.astype(bool)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def test_silhouette_with_shadow_and_exposure_jitter(rng: np.random.Generator) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 20))
+    truth = _person_mask()
+    frame = base.copy() * 1.08  # exposure jitter
+    shadow = np.zeros(truth.shape, bool)
+    shadow[108:118, 60:120] = True
+    frame[shadow] *= 0.6  # soft cast shadow on the floor
+    frame[truth] = (60, 60, 62)  # dark grey clothing
+    frame = np.clip(frame + rng.normal(0, 2.0, frame.shape), 0, 255).astype(np.uint8)
+    sil = subtract(model, frame)
+    assert _iou(sil, truth) > 0.9
+    assert not sil[shadow & ~cv2.dilate(truth.astype(np.uint8), np.ones((5, 5))).astype(bool)].any()
+
+
+def test_empty_scene_gives_empty_mask(rng: np.random.Generator) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 10))
+    for gain in (0.9, 1.0, 1.12):
+        assert not subtract(model, _frames(rng, base, 1, gain)[0]).any()
+
+
+def test_clean_mask_keeps_largest_component_and_fills_holes() -> None:
+    m = np.zeros((50, 50), bool)
+    m[10:40, 10:30] = True
+    m[20:25, 15:20] = False  # hole
+    m[2:4, 45:48] = True  # speck
+    out = clean_mask(m, BackgroundParams(open_px=1, close_px=1))
+    assert out[22, 17] and not out[3, 46]
+    assert out.sum() == 30 * 20
+
+
+@pytest.mark.parametrize("open_px,close_px", [(3, 5), (1, 1), (5, 9), (3, 1)])
+def test_clean_mask_in_the_box_equals_the_whole_image(open_px: int, close_px: int) -> None:
+    """The box-cropped clean-up gives the whole-image result bit for bit: blobs with holes and
+    notches, specks, several components, a person touching each image border and the corners,
+    a hole that opens to the box's edge, and empty or all-speck masks."""
+    rng = np.random.default_rng(23)
+    params = BackgroundParams(open_px=open_px, close_px=close_px)
+    cases = []
+    for k in range(120):
+        h, w = (60, 80) if k % 2 else (120, 160)
+        m = np.zeros((h, w), bool)
+        for _ in range(int(rng.integers(0, 4))):  # blobs
+            y0, x0 = int(rng.integers(-10, h)), int(rng.integers(-10, w))
+            m[max(y0, 0):y0 + int(rng.integers(5, h // 2)), max(x0, 0):x0 + int(rng.integers(3, w // 3))] = True
+        m ^= rng.random((h, w)) < (0.02 if k % 3 else 0.15)  # specks and pinholes
+        if k % 5 == 0:  # a person against one border or a corner
+            side = int(rng.integers(0, 4))
+            sl = [(slice(0, h // 2), slice(w // 3, w // 2)), (slice(h // 2, h), slice(w // 3, w // 2)),
+                  (slice(h // 4, h // 2), slice(0, w // 4)), (slice(h // 2, h), slice(w - w // 4, w))][side]
+            m[sl] = True
+            m[sl[0].start + 2:sl[0].stop - 2, sl[1].start + 2:sl[1].start + 4] = False  # a hole or a notch
+        cases.append(m)
+    cases += [np.zeros((60, 80), bool), np.ones((60, 80), bool)]
+    for m in cases:
+        np.testing.assert_array_equal(clean_mask(m, params), clean_mask_reference(m, params))
+
+
+def test_adaptive_update_absorbs_a_slow_change(rng: np.random.Generator) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 10))
+    moved = base.copy()
+    moved[5:20, 5:40] = (30, 200, 30)  # an object placed in the room
+    frame = _frames(rng, moved, 1)[0]
+    assert subtract(model, frame).any()
+    for _ in range(400):
+        model = update_background(model, _frames(rng, moved, 1)[0], np.zeros(base.shape[:2], bool), rate=0.05)
+    assert not subtract(model, frame).any()
+
+
+def test_bad_input_is_rejected(rng: np.random.Generator) -> None:
+    with pytest.raises(ValueError):
+        learn_background(np.zeros((1, 10, 10, 3), np.uint8))
+    model = learn_background(_frames(rng, _room(rng), 3))
+    with pytest.raises(ValueError, match="does not match"):
+        subtract(model, np.zeros((10, 10, 3), np.uint8))
+
+
+@pytest.mark.parametrize("gain", [0.7, 1.0, 1.15])
+def test_foreground_kernel_matches_numpy_reference(rng: np.random.Generator, gain: float) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 12))
+    frame = _frames(rng, base, 1, gain)[0]
+    frame[_person_mask()] = rng.integers(0, 256, (int(_person_mask().sum()), 3))
+    frame[:10, :10] = 0  # black pixels: chromaticity undefined
+    frame[-10:, -10:] = 255
+    for params in (BackgroundParams(), BackgroundParams(chroma_threshold=1.5, shadow_ratio=0.5, dark_level=60.0)):
+        fast = raw_foreground(model, frame, params)
+        ref = raw_foreground_reference(model, frame, params)
+        assert fast.dtype == bool and fast.shape == ref.shape
+        assert 0.01 < ref.mean() < 0.99  # both classes present: the comparison means something
+        np.testing.assert_array_equal(fast, ref)

@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+
+from tracker_service.templates.tree import PackedMaskDistance, build_tree, cluster_node, pack_masks
+
+
+class EuclidDistance:
+    """Reference distance on points, to test Algorithm 1 independently of silhouettes."""
+
+    def __init__(self, x: np.ndarray) -> None:
+        self.x = x
+
+    def distances(self, proto: int, members: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(self.x[members] - self.x[proto], axis=1)
+
+
+def test_hamming_kernel_matches_numpy(rng: np.random.Generator) -> None:
+    masks = rng.random((50, 60, 80)) > 0.5
+    d = PackedMaskDistance(pack_masks(masks), 60 * 80)
+    got = d.distances(3, np.arange(50))
+    want = (masks != masks[3]).reshape(50, -1).mean(axis=1)
+    np.testing.assert_allclose(got, want)
+
+
+def test_cluster_radius_is_bounded_and_first_is_medoid(rng: np.random.Generator) -> None:
+    x = np.concatenate([rng.normal(c, 0.3, (60, 2)) for c in ((0, 0), (5, 0), (0, 5), (5, 5))])
+    dist = EuclidDistance(x)
+    members = np.arange(len(x))
+    protos, assign = cluster_node(members, dist, threshold=1.5, rng=rng)
+    assert 4 <= len(protos) <= 12
+    radius = np.linalg.norm(x - x[protos[assign]], axis=1)
+    assert radius.max() <= 1.5 + 1e-12  # every member within t_L of its prototype
+    # each member goes to its nearest prototype
+    d_all = np.linalg.norm(x[:, None] - x[protos][None], axis=2)
+    np.testing.assert_array_equal(assign, np.argmin(d_all, axis=1))
+    # the first prototype is the exact medoid for small nodes
+    means = np.linalg.norm(x[:, None] - x[None], axis=2).mean(axis=1)
+    assert protos[0] == np.argmin(means)
+
+
+def test_max_prototypes_caps_a_node(rng: np.random.Generator) -> None:
+    x = rng.normal(0, 1, (200, 2))
+    protos, assign = cluster_node(np.arange(200), EuclidDistance(x), 0.01, max_prototypes=7, rng=rng)
+    assert len(protos) == 7 and assign.max() == 6
+
+
+def test_three_level_tree_structure(rng: np.random.Generator) -> None:
+    x = rng.uniform(0, 10, (600, 2))
+    dist = EuclidDistance(x)
+    tree = build_tree(len(x), [dist, dist, dist], [4.0, 1.5, 0.5], rng=rng)
+    sizes = tree.level_sizes
+    assert sizes[0] < sizes[1] < sizes[2] <= 600
+    # CSR children cover every node of the next level exactly once, in order
+    for lvl in range(2):
+        ptr = tree.child_ptr[lvl]
+        assert ptr[0] == 0 and ptr[-1] == sizes[lvl + 1] and np.all(np.diff(ptr) >= 1)
+        for node in range(sizes[lvl]):
+            assert np.all(tree.node_parent[lvl + 1][tree.children(lvl, node)] == node)
+    # every template's leaf is within t_3 of the leaf prototype, and leaves nest in their ancestors
+    leaf_proto = tree.node_template[2][tree.template_leaf]
+    assert np.linalg.norm(x - x[leaf_proto], axis=1).max() <= 0.5 + 1e-12
+    assert np.all(np.isin(tree.node_template[0], np.arange(600)))
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError):
+        build_tree(3, [], [])
+    with pytest.raises(ValueError):
+        cluster_node(np.zeros(0, np.int64), EuclidDistance(np.zeros((1, 2))), 1.0)

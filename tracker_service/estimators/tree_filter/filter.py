@@ -1,0 +1,511 @@
+"""Tree-based Bayesian filtering over the shape hierarchy (Okada & Stenger §2, eq. 1-6, 13-14).
+
+The state is a leaf of the template tree (a pose) plus the subject's global placement in the image
+(a shift ``(dx, dy)`` and a scale ``s`` about the principal point: a depth change for a level
+camera). Per frame:
+
+1. **Prediction** (eq. 2 / eq. 5): the previous leaf posterior is pushed through the transition
+   model -- the leaf transition histograms of the recordings mixed with the first-order Gaussian
+   dynamics of eq. 13, whose per-part standard deviations are multiplied by ``m`` for parts that
+   were occluded (eq. 14) -- plus a small uniform mass that lets the filter re-acquire. The prior
+   of a node is the sum of its leaves' priors (eq. 4).
+2. **Update, coarse to fine** (eq. 1, eq. 6): level by level on the image pyramid, every candidate
+   node's prototype silhouette is compared with the observation at a few placements around the
+   predicted one; the Gaussian likelihood of the best placement times the node prior gives the node
+   posterior; children of nodes whose posterior falls below a fraction of the level's best are
+   not searched.
+3. **Estimate**: the MAP leaf with its placement refined at full resolution, the posterior-mean
+   pose over the retained leaves, and the visibility of each part (from the MAP template's part
+   labels) that drives eq. 14 in the next frame.
+
+Everything here is a pure function of arrays: ``step(state, db, features, obs) -> (state, estimate)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from functools import lru_cache, partial
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from tracker_service.cues.skin import HAND_PARTS, SkinObservation, skin_cost
+from tracker_service.estimators.tree_filter._kernels import (
+    expand_kernel,
+    heading_mass_kernel,
+    leaf_prior_kernel,
+    level_cost_kernel,
+    level_priors_kernel,
+    mean_pose_kernel,
+    node_predictions_kernel,
+)
+from tracker_service.estimators.tree_filter.model import Estimate, FilterDB, FilterParams, FilterState
+from tracker_service.estimators.tree_filter.reference import heading_mass_reference
+from tracker_service.silhouette.distance import evaluate_template_grid
+from tracker_service.silhouette.features import LevelFeatures
+
+__all__ = ["Estimate", "FilterDB", "FilterParams", "FilterState", "initial_state", "mean_pose", "step",
+           "support_heading", "tempered"]
+
+
+def initial_state(placement: NDArray[np.float64] | None = None, reinits: int = 0) -> FilterState:
+    """The state before the first frame (or after a loss): no leaf information."""
+    p = np.array([0.0, 0.0, 1.0]) if placement is None else np.asarray(placement, np.float64)
+    return FilterState(np.zeros(0, np.int64), np.zeros(0), p, reinits=reinits)
+
+
+def support_heading(state: FilterState, db: FilterDB) -> float:
+    """The heading of the filter's support: its leaves' headings' circular mean under their weights
+    (radians; ``state.leaves`` must not be empty)."""
+    cur = db.leaf_heading[state.leaves].astype(np.float64)
+    return float(np.arctan2(state.weights @ np.sin(cur), state.weights @ np.cos(cur)))
+
+
+def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> NDArray[np.float64]:
+    """Prior over all leaves (eq. 2, 5, 13, 14).
+
+    Returns
+    -------
+    (NL,) float64, sums to 1.
+    """
+    nl = db.n_leaves
+    allowed = (np.abs(db.leaf_heading) <= params.max_heading if params.max_heading is not None
+               else np.ones(nl, bool))
+    if not allowed.any():
+        allowed[:] = True
+    if len(state.leaves) == 0:  # no history: faces the camera first (front/back resolved so)
+        prior = (db.leaf_facing & allowed).astype(np.float64)
+        if not prior.any():
+            prior[:] = 1.0
+        return prior / prior.sum()
+    m2 = np.where(state.occluded, params.occlusion_m**2, 1.0)  # eq. 14
+    inv_var = 1.0 / (db.sigma_part.astype(np.float64) ** 2 * m2)  # (N_PARTS,)
+    prior = np.zeros(nl)
+    # eq. 13: Gaussian around the previous pose over each leaf's pose-space neighbours, plus eq. 5's
+    # transition histograms (numba; reference: filter_reference.motion_prior_reference)
+    leaf_prior_kernel(np.ascontiguousarray(state.leaves, np.int64), np.ascontiguousarray(state.weights, np.float64),
+                      db.nbr_idx, db.nbr_dpart, inv_var, db.trans_ptr, db.trans_idx, db.trans_p,
+                      float(params.hist_weight), prior)
+    # re-acquisition mass, restricted to headings near the current one (numba; reference:
+    # filter_reference.heading_mass_reference)
+    mean_heading = support_heading(state, db)
+    if not heading_mass_kernel(prior, np.ascontiguousarray(db.leaf_heading, np.float32), allowed,
+                               mean_heading, float(params.max_turn), float(params.uniform_mass)):
+        prior = heading_mass_reference(prior, db.leaf_heading, allowed, mean_heading, params.max_turn,
+                                       params.uniform_mass)
+    if prior.sum() <= 0:
+        prior = allowed.astype(np.float64)
+    return prior / prior.sum()
+
+
+@lru_cache(maxsize=64)
+def _offsets(step_px: float, step_s: float, nx: int, ns: int) -> NDArray[np.float64]:
+    """Placement offsets ``(ddx, 0, ds)`` of a small search grid (``ds`` relative).
+
+    Returns
+    -------
+    (nx * ns, 3) float64
+        Read-only (cached: the same few grids every frame).
+    """
+    kx = np.arange(nx) - (nx - 1) / 2
+    ks = np.arange(ns) - (ns - 1) / 2
+    dx, ds = np.meshgrid(kx * step_px, ks * step_s, indexing="ij")
+    out = np.zeros((dx.size, 3))
+    out[:, 0] = dx.ravel()
+    out[:, 2] = ds.ravel()
+    out.setflags(write=False)
+    return out
+
+
+def _eval_level(db: FilterDB, feats: LevelFeatures, level: int, nodes: NDArray[np.int64],
+                centers: NDArray[np.float64], offsets: NDArray[np.float64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Distances of every node at every placement ``center + offset``.
+
+    Returns
+    -------
+    d : (n, G) float64
+    places : (n, G, 3) float64
+        The full-resolution placements evaluated.
+    """
+    sc = db.level_scale[level]
+    places = centers[:, None, :] + offsets[None, :, :]
+    places[..., 2] = centers[:, None, 2] * (1.0 + offsets[None, :, 2])
+    tr = places.copy()
+    tr[..., :2] *= sc
+    center = ((db.center[0] + 0.5) * sc - 0.5, (db.center[1] + 0.5) * sc - 0.5)  # pixel-centre convention
+    d = evaluate_template_grid(feats, db.level_runs[level], nodes, tr, center)
+    return d, places
+
+
+def _level_cost(db: FilterDB, feats: LevelFeatures, level: int, nodes: NDArray[np.int64],
+                centers: NDArray[np.float64], node_pred: NDArray[np.float64], params: FilterParams,
+                motion_scale: float, skin: SkinObservation | None, sel: NDArray[np.int64] | slice,
+                offsets: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """eq. 6's negative log likelihood plus the placement prior (and the skin cue) of the nodes
+    ``nodes[sel]`` at every placement ``center + offset``.
+
+    Parameters
+    ----------
+    centers : (n, 3) or (n, H, 3) float
+        Each node's predicted placement, one per placement hypothesis (grids side by side).
+    node_pred : (n, H, 3) float
+        The hypotheses' predictions for the placement prior (:func:`_node_predictions`).
+
+    Returns
+    -------
+    cost : (m, H*G) float64
+    places : (m, H*G, 3) float64
+    evaluations : int
+    """
+    sub, cen = nodes[sel], centers[sel]
+    if cen.ndim == 3:  # several placement hypotheses per node: their grids side by side
+        n_h = cen.shape[1]
+        d, pl = _eval_level(db, feats, level, np.repeat(sub, n_h), cen.reshape(-1, 3), offsets)
+        d, pl = d.reshape(len(sub), -1), pl.reshape(len(sub), -1, 3)
+    else:
+        d, pl = _eval_level(db, feats, level, sub, cen, offsets)
+    t = _cost(d, pl, node_pred[sel], params.sigma[level], params, motion_scale)
+    return t + _skin_cost(db, level, sub, pl, skin, params), pl, d.size
+
+
+def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]],
+                                 tuple[NDArray[np.float64], NDArray[np.float64], int]],
+              offs: NDArray[np.float64], node_prior: NDArray[Any], n_best: int
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """A level's placement grid in two passes (``FilterParams.screen``).
+
+    Every node is evaluated at the grid's centre cell (its predicted placement); the ``n_best``
+    nodes by posterior and the ``n_best`` by likelihood are then evaluated on the whole grid. Cells
+    not evaluated get an infinite cost.
+
+    Parameters
+    ----------
+    neg_log : callable
+        ``neg_log(sel, offsets) -> (cost (n, H*G), places (n, H*G, 3), evaluations)`` for nodes ``sel``.
+    offs : (G, 3) float
+        The grid (odd sizes: its middle cell is the zero offset).
+    node_prior : (n,) float
+    n_best : int
+
+    Returns
+    -------
+    cost : (n, H*G) float64
+    places : (n, H*G, 3) float64
+    evaluations : int
+    """
+    g = len(offs)
+    c = g // 2
+    t0, p0, n0 = neg_log(slice(None), offs[c: c + 1])  # (n, H), (n, H, 3)
+    n, n_h = t0.shape
+    lik = t0.min(axis=1)
+    lp = np.log(np.maximum(node_prior, 1e-300)) - lik
+    sel = np.union1d(np.argsort(-lp)[:n_best], np.argsort(lik)[:n_best])
+    t_sel, p_sel, n1 = neg_log(sel, offs)
+    cost = np.full((n, n_h, g), np.inf)
+    places = np.repeat(p0[:, :, None, :], g, axis=2)
+    cost[:, :, c] = t0
+    cost[sel] = t_sel.reshape(len(sel), n_h, g)
+    places[sel] = p_sel.reshape(len(sel), n_h, g, 3)
+    return cost.reshape(n, -1), places.reshape(n, -1, 3), n0 + n1
+
+
+def mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weighted mean of poses ``(n, P)``: root averaged, rotations as the normalised weighted sum
+    of quaternions on one hemisphere (numba; reference: filter_reference.mean_pose_reference).
+
+    Returns
+    -------
+    (P,) float64
+    """
+    return mean_pose_kernel(np.ascontiguousarray(poses, np.float64), np.ascontiguousarray(w, np.float64))
+
+
+def tempered(w: NDArray[np.float64], temperature: float) -> NDArray[np.float64]:
+    """Weights ``w ** (1 / T)`` renormalised (``T`` = 1: ``w`` itself)."""
+    if temperature == 1.0:
+        return w
+    t = np.power(np.maximum(w, 1e-300), 1.0 / temperature)
+    return t / t.sum()
+
+
+def _cost(d: NDArray[np.float64], places: NDArray[np.float64], hyps: NDArray[np.float64], sigma: float,
+          params: FilterParams, motion_scale: float) -> NDArray[np.float64]:
+    """eq. 6's negative log likelihood of distances ``d`` ``(n, G)`` plus the placement prior of
+    ``places`` ``(n, G, 3)``: a Gaussian in shift and scale around the cheaper of each node's
+    hypotheses ``(n, H, 3)``, the height hypothesis's scale held to the motion prediction's
+    ``motion_scale`` (a body off the floor has not changed depth; a wrong pose cannot buy the
+    silhouette's height by a jump in depth) at ``airborne_cost`` more (numba; reference:
+    filter_reference.level_cost_reference).
+
+    Returns
+    -------
+    (n, G) float64
+    """
+    return level_cost_kernel(np.ascontiguousarray(d, np.float64), np.ascontiguousarray(places, np.float64),
+                             np.ascontiguousarray(hyps, np.float64), float(sigma), float(params.placement_sigma_px),
+                             float(params.placement_sigma_scale), float(motion_scale), float(params.airborne_cost))
+
+
+def _node_predictions(db: FilterDB, level: int, nodes: NDArray[np.int64], pred: NDArray[np.float64],
+                      obs_weight: float, obs: NDArray[np.float64] | None = None,
+                      rows: NDArray[np.float64] | None = None, scale_range: tuple[float, float] = (0.0, np.inf)
+                      ) -> NDArray[np.float64]:
+    """Predicted placements of each node: one per placement hypothesis.
+
+    Hypothesis 0, **feet on the floor**: the observed placement assumes every template's lower-body
+    column is the root's and its lowest row is on the floor. A template whose column lies elsewhere
+    (a leg or arm to one side) is shifted by the difference; one whose feet are off the floor (a
+    stride, a raised knee) has the observed scale multiplied by ``(floor - c_y) / (bottom - c_y)``
+    so that its own lowest row, not the floor row, meets the observed feet line. Both corrections
+    enter in the observation's share ``obs_weight`` of the prediction.
+
+    Hypothesis 1, **the silhouette's height** (with ``rows``): the whole body may be off the floor
+    (a leap, the flight phase of a run), where the feet line reads as a person moving away (a
+    40 cm leap looked 2 m further away). The height of the silhouette does not change in a leap:
+    the scale is the observed height over the template's, and the template is shifted vertically
+    so that its lowest row meets the observed one. The silhouette decides between the two
+    (:func:`step` evaluates both; the placement prior is their mixture).
+
+    Computed by :func:`tracker_service.estimators.tree_filter._kernels.node_predictions_kernel` (reference:
+    :func:`tracker_service.estimators.tree_filter.reference.node_predictions_reference`).
+
+    Parameters
+    ----------
+    rows : (2,) float, optional
+        The observed silhouette's top and bottom rows (full resolution).
+    scale_range : (float, float)
+        Bounds of the height hypothesis's scale (around the motion prediction's: a leap does not
+        change the depth, and a pose the database lacks must not buy the silhouette's height with
+        a jump in depth).
+
+    Returns
+    -------
+    (n, H, 3) float64
+        ``H`` = 1, or 2 with ``rows``.
+    """
+    has_rows = bool(db.level_bottom) and bool(np.isfinite(db.ref_bottom))
+    use_obs = obs_weight > 0 and obs is not None and has_rows
+    use_height = rows is not None and has_rows and bool(db.level_top)
+    use_column = obs_weight > 0 and bool(db.level_column) and bool(np.isfinite(db.ref_column))
+    none = np.zeros(0)
+    return node_predictions_kernel(
+        np.ascontiguousarray(nodes, np.int64), np.ascontiguousarray(pred, np.float64),
+        none if obs is None else np.ascontiguousarray(obs, np.float64), float(obs_weight), use_obs,
+        db.level_bottom[level] if has_rows else none, db.level_top[level] if use_height else none, use_height,
+        none if rows is None else np.ascontiguousarray(rows, np.float64), float(scale_range[0]),
+        float(scale_range[1]), db.level_column[level] if use_column else none, use_column, float(db.ref_column),
+        float(db.ref_bottom), float(db.center[1]))
+
+
+def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArray[np.float64],
+               skin: SkinObservation | None, params: FilterParams) -> NDArray[np.float64] | float:
+    """Skin-cue cost (:func:`tracker_service.cues.skin.hand_cost`) of nodes at placements ``(n, G, 3)``;
+    a node above the leaves is represented by the leaf holding its prototype template."""
+    if (skin is None or params.skin_weight <= 0 or level < params.skin_from_level or not len(db.leaf_points)
+            or skin.fraction > params.skin_max_fraction):
+        return 0.0
+    tree = db.tree
+    leaves = nodes if level == tree.n_levels - 1 else tree.template_leaf[tree.node_template[level][nodes]]
+    c = skin_cost(skin, db.leaf_points, db.leaf_visible, leaves, places, db.center, params.skin_sigma_px,
+                  params.skin_cap_px, params.skin_hidden_cost,
+                  params.skin_cover_weight if level >= params.skin_cover_from_level else 0.0,
+                  params.skin_cover_radius_px, params.skin_min_visible, HAND_PARTS)
+    return params.skin_weight * c
+
+
+def _leaf_cues(leaves: NDArray[np.int64], places: NDArray[np.float64], params: FilterParams,
+               shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None,
+               appearance_cost: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None
+               ) -> NDArray[np.float64] | None:
+    """The leaf level's extra negative log likelihood: the shoe and appearance cues, each weighted
+    and taken relative to its cheapest leaf (None: neither applies)."""
+    out = None
+    if shoe_cost is not None and params.shoe_weight > 0:
+        c = shoe_cost(leaves, places)
+        if c is not None:
+            out = params.shoe_weight * (c - c.min())
+    if appearance_cost is not None and params.appearance_weight > 0:
+        c = appearance_cost(leaves)
+        if np.isfinite(c).all():  # (a non-finite cost would poison the posterior for good: skipped)
+            a = params.appearance_weight * (c - c.min())
+            out = a if out is None else out + a
+    return out
+
+
+def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
+         observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None,
+         observed_rows: NDArray[np.float64] | None = None,
+         shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None = None,
+         appearance_cost: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None = None,
+         proposals: NDArray[np.int64] | None = None,
+         ) -> tuple[FilterState, Estimate]:
+    """One frame of tree-based filtering.
+
+    Parameters
+    ----------
+    state : FilterState
+    db : FilterDB
+    features : list of LevelFeatures
+        The observation, coarse to fine (:func:`tracker_service.silhouette.features.preprocess`).
+    params : FilterParams
+    observed_placement : (3,) float, optional
+        Placement measured directly from the silhouette (feet line and body centre); blended into
+        the prediction, and used alone after (re-)initialisation.
+    skin : SkinObservation, optional
+        The frame's skin evidence (:func:`tracker_service.cues.skin.observe_skin`): where the hands may be.
+    observed_rows : (2,) float, optional
+        Top and bottom rows of the silhouette (:func:`tracker_service.silhouette.placement.silhouette_rows`):
+        a second placement hypothesis per node from the silhouette's height (a body off the floor).
+    shoe_cost : callable, optional
+        ``shoe_cost(leaves (n,) int64, places (n, 3)) -> (n,) float64 or None``: the shoe cue's
+        cost of leaves at placements (:func:`tracker_service.cues.shoes.feet_cost`), added to eq. 6's
+        negative log likelihood at the leaf level times ``params.shoe_weight``.
+    appearance_cost : callable, optional
+        ``appearance_cost(leaves (n,) int64) -> (n,) float64``: the appearance cue's cost of leaves
+        (:func:`tracker_service.cues.appearance.joints_cost`), added to the leaf level's negative log
+        likelihood times ``params.appearance_weight``.
+    proposals : (n,) int64, optional
+        Leaves proposed by another estimator (the appearance cue's nearest leaves,
+        :func:`tracker_service.cues.appearance.propose_leaves`): evaluated at the leaf level beside the
+        tree's own candidates, each on the refinement grid (±2 px, ±1 %) around its predicted
+        placement (both hypotheses of :func:`_node_predictions` when the height hypothesis is on),
+        with its prior from the motion model like every other leaf.
+
+    Returns
+    -------
+    state : FilterState
+    estimate : Estimate
+    """
+    fresh = len(state.leaves) == 0
+    pred = state.placement + 0.5 * state.velocity
+    sil_rows = None
+    motion_scale = float(pred[2])
+    cur_rows = None if observed_rows is None else np.asarray(observed_rows, np.float64)
+    if (cur_rows is not None and params.height_hypothesis and observed_placement is not None and not fresh
+            and float(observed_placement[2]) < motion_scale * (1.0 - params.airborne_gate)):
+        sil_rows = cur_rows  # the feet line rose: a step back, or the feet left the floor
+    s_range = (motion_scale * (1.0 - params.airborne_scale_range), motion_scale * (1.0 + params.airborne_scale_range))
+    w_obs = 0.0
+    obs = None
+    if observed_placement is not None:
+        obs = np.asarray(observed_placement, np.float64)
+        w_obs = 1.0 if fresh else params.observation_weight
+        pred = w_obs * obs + (1 - w_obs) * pred
+    prior = predict_leaves(state, db, params)
+    tree = db.tree
+    n_levels = tree.n_levels
+    nodes = np.arange(tree.level_sizes[0], dtype=np.int64)
+    centers = _node_predictions(db, 0, nodes, pred, w_obs, obs, sil_rows, s_range)  # (n, H, 3) at level 0
+    evals: list[int] = []
+    post = np.zeros(0)
+    node_place = centers
+    cost = np.zeros(0)
+    bounds = np.concatenate([[0], np.cumsum(tree.level_sizes)]).astype(np.int64)
+    all_priors = np.zeros(int(bounds[-1]))
+    level_priors_kernel(db.leaf_anc, prior, bounds, all_priors)  # eq. 4 (reference: np.bincount)
+    for lvl in range(n_levels):
+        node_prior = all_priors[bounds[lvl]: bounds[lvl + 1]][nodes]
+        shrink = 0.5**lvl
+        grid = params.grid[lvl]
+        offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
+        node_pred = centers if lvl == 0 else _node_predictions(db, lvl, nodes, pred, w_obs, obs, sil_rows, s_range)
+
+        neg_log = partial(_level_cost, db, features[lvl], lvl, nodes, centers, node_pred, params, motion_scale, skin)
+        n_screen = params.screen[lvl] if lvl < len(params.screen) else 0
+        if n_screen > 0 and len(offs) > 1 and len(nodes) > 2 * n_screen:
+            total, places, n_eval = _screened(neg_log, offs, node_prior, n_screen)
+        else:
+            total, places, n_eval = neg_log(slice(None), offs)
+        evals.append(n_eval)
+        best = np.argmin(total, axis=1)
+        rows = np.arange(len(nodes))
+        cost = total[rows, best]
+        node_place = places[rows, best]
+        logpost = np.log(np.maximum(node_prior, 1e-300)) - cost  # eq. 1
+        post = np.exp(logpost - logpost.max())
+        post /= post.sum()
+        if lvl < n_levels - 1:
+            keep = np.flatnonzero(post >= params.keep_rel * post.max())
+            keep = keep[np.argsort(-post[keep])][: params.max_keep[lvl]]
+            n_lik = params.keep_likelihood[lvl] if lvl < len(params.keep_likelihood) else 0
+            if n_lik:  # data-driven proposal: the best nodes by likelihood alone survive a misleading prior
+                keep = np.union1d(keep, np.argsort(cost)[:n_lik])
+            # the kept nodes' children start from their parent's best placement, corrected for the
+            # difference of their template columns (numba; reference: filter_reference.expand_reference)
+            cols = db.level_column
+            nodes, centers = expand_kernel(tree.child_ptr[lvl], nodes, np.ascontiguousarray(keep, np.int64),
+                                           np.ascontiguousarray(node_place, np.float64),
+                                           cols[lvl] if cols else np.zeros(0), cols[lvl + 1] if cols else np.zeros(0),
+                                           bool(cols))
+    if proposals is not None and len(proposals):
+        extra = np.setdiff1d(np.asarray(proposals, np.int64), nodes)
+        if len(extra):  # the appearance cue's leaves, each on a small grid around its own predictions
+            last = n_levels - 1
+            ex_pred = _node_predictions(db, last, extra, pred, w_obs, obs, sil_rows, s_range)
+            t_ex, p_ex, n_ex = _level_cost(db, features[last], last, extra, ex_pred, ex_pred, params,
+                                           motion_scale, skin, slice(None), _offsets(2.0, 0.01, 3, 3))
+            evals[-1] += n_ex
+            b_ex = np.argmin(t_ex, axis=1)
+            r_ex = np.arange(len(extra))
+            c_ex = t_ex[r_ex, b_ex]
+            prior_ex = all_priors[bounds[last]: bounds[last + 1]][extra]
+            logpost = np.concatenate([logpost, np.log(np.maximum(prior_ex, 1e-300)) - c_ex])
+            nodes = np.concatenate([nodes, extra])
+            cost = np.concatenate([cost, c_ex])
+            node_place = np.concatenate([node_place, p_ex[r_ex, b_ex]])
+            post = np.exp(logpost - logpost.max())
+            post /= post.sum()
+    leaves = nodes
+    leaf_c = _leaf_cues(leaves, node_place, params, shoe_cost, appearance_cost)
+    if leaf_c is not None:
+        cost = cost + leaf_c
+        logpost = np.log(np.maximum(post, 1e-300)) - leaf_c
+        post = np.exp(logpost - logpost.max())
+        post /= post.sum()
+    order = np.argsort(-post)
+    # refine the placement of the best leaves at full resolution
+    top = order[: params.refine]
+    offs = _offsets(2.0, 0.01, 3, 3)
+    d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
+    evals[-1] += d_ref.size
+    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs, sil_rows, s_range)
+    total = _cost(d_ref, places, top_pred, params.sigma[-1], params, motion_scale)
+    total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
+    if leaf_c is not None:
+        total = total + leaf_c[top, None]
+    best = np.argmin(total, axis=1)
+    rows = np.arange(len(top))
+    lp = np.log(np.maximum(post[top], 1e-300)) + cost[top] - total[rows, best]
+    k = int(np.argmax(lp))
+    map_leaf = int(leaves[top[k]])
+    place = places[k, best[k]]
+    dist = float(d_ref[k, best[k]])
+    sup = order[: params.support]
+    w = post[sup] / post[sup].sum()
+    sup_leaves = leaves[sup]
+    poses = db.leaf_poses[sup_leaves].astype(np.float64)
+    vis = db.leaf_visible[map_leaf]
+    misses = state.misses + 1 if dist > params.lost_distance else 0
+    reinit = misses >= params.lost_frames
+    vel = 0.5 * state.velocity + 0.5 * (place - state.placement) if not fresh else np.zeros(3)
+    new_state = FilterState(sup_leaves, w, place, vel, vis <= 0.0, misses, state.reinits)
+    if reinit:
+        new_state = initial_state(place, state.reinits + 1)
+    est = Estimate(
+        leaf=map_leaf, pose_map=db.leaf_poses[map_leaf].astype(np.float64),
+        pose_mean=mean_pose(poses, tempered(w, params.mean_temperature)),
+        placement=place, distance=dist,
+        confidence=float(np.exp(-0.5 * (dist / params.confidence_scale) ** 2)),
+        visibility=vis.astype(np.float32), evaluations=tuple(evals), reinitialised=reinit,
+        support_places=node_place[sup], support_cost=cost[sup], support_leaves=np.asarray(sup_leaves, np.int64),
+        support_weights=w,
+    )
+    return new_state, est
+
+
+def with_occlusion(state: FilterState, occluded: NDArray[np.bool_]) -> FilterState:
+    """Override the occlusion flags (for DM1 vs DM2 comparisons: all False disables eq. 14)."""
+    return replace(state, occluded=np.asarray(occluded, bool))

@@ -1,0 +1,303 @@
+"""Background subtraction (Okada & Stenger §2.2): a per-pixel Gaussian model of intensity-normalised
+colour learned from empty frames, a Mahalanobis threshold, morphological clean-up and the largest
+connected component.
+
+Chromaticity ``(r, g) = (R, G) / (R + G + B)`` does not change under shadows and global exposure
+changes, which is why the paper normalises by intensity. It cannot see dark or grey clothing in
+front of a grey wall, so a brightness test completes it: a pixel is foreground when its chromaticity
+is far from the model (Mahalanobis distance above ``chroma_threshold``) *or* its brightness ratio
+to the model leaves ``[shadow_ratio, highlight_ratio]`` by more than the pixel's noise. Shadows
+(darker, same chromaticity) and lighting jitter stay background. In dark pixels chromaticity is
+noise, so only brightness counts there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from tracker_service.silhouette._kernels import foreground_kernel
+
+__all__ = ["BackgroundModel", "BackgroundParams", "clean_mask", "clean_mask_reference", "learn_background",
+           "raw_foreground", "raw_foreground_reference",
+           "subtract", "update_background"]
+
+_EPS = 1e-6
+
+
+@dataclass(frozen=True)
+class BackgroundParams:
+    """Thresholds of :func:`subtract`. Defaults from a grid search on the synthetic scene (3 subjects,
+    rooms and lightings; 36 frames): mean silhouette IoU 0.93 (worst frame 0.88) against the
+    scene's true silhouette, versus 0.76 for the first guess (chroma 4, brightness 4 sigma,
+    shadows down to 0.45).
+
+    Attributes
+    ----------
+    chroma_threshold : float
+        Mahalanobis distance on chromaticity above which a pixel is foreground.
+    shadow_ratio, highlight_ratio : float
+        Brightness ratios (frame / model) still explained by shadows and highlights.
+    brightness_sigmas : float
+        Noise margin on the brightness ratio, in standard deviations of the pixel's brightness.
+    dark_level : float
+        Model brightness (0-255) under which chromaticity is ignored.
+    min_area_frac : float
+        The largest component must cover at least this fraction of the image, else empty mask.
+    open_px, close_px : int
+        Morphological opening / closing kernel sizes (pixels at the working resolution).
+    """
+
+    chroma_threshold: float = 3.0
+    shadow_ratio: float = 0.6
+    highlight_ratio: float = 1.2
+    brightness_sigmas: float = 2.0
+    dark_level: float = 25.0
+    min_area_frac: float = 0.002
+    open_px: int = 3
+    close_px: int = 5
+
+
+@dataclass(frozen=True)
+class BackgroundModel:
+    """Per-pixel Gaussian background model.
+
+    Attributes
+    ----------
+    chroma_mean : (H, W, 2) float32
+        Mean chromaticity ``(r, g)``.
+    chroma_inv_var : (H, W, 2) float32
+        Inverse variances (diagonal covariance) of the chromaticity.
+    bright_mean : (H, W) float32
+        Mean brightness ``(R + G + B) / 3``.
+    bright_std : (H, W) float32
+        Standard deviation of the brightness.
+    n_frames : int
+        Frames the model was learned from.
+    """
+
+    chroma_mean: NDArray[np.float32]
+    chroma_inv_var: NDArray[np.float32]
+    bright_mean: NDArray[np.float32]
+    bright_std: NDArray[np.float32]
+    n_frames: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.bright_mean.shape[0]), int(self.bright_mean.shape[1]))
+
+
+def _chroma_bright(frame: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    f = frame.astype(np.float32)
+    s = f.sum(axis=-1)
+    chroma = f[..., 1:3] / np.maximum(s, _EPS)[..., None]  # BGR: (G, R) / sum
+    return chroma, s / 3.0
+
+
+def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
+                     bright_std_floor: float = 2.0) -> BackgroundModel:
+    """Learn the model from frames of the empty scene.
+
+    Parameters
+    ----------
+    frames : (N, H, W, 3) uint8
+        BGR frames without the subject (N >= 2; 10-30 recommended).
+    chroma_std_floor, bright_std_floor : float
+        Lower bounds of the standard deviations (a static synthetic scene has none).
+
+    Returns
+    -------
+    BackgroundModel
+    """
+    f = np.asarray(frames)
+    if f.ndim != 4 or f.shape[-1] != 3 or f.shape[0] < 2:
+        raise ValueError(f"need (N >= 2, H, W, 3) frames, got {f.shape}")
+    c, b = _chroma_bright(f)
+    c_std = np.maximum(c.std(axis=0), chroma_std_floor)
+    b_std = np.maximum(b.std(axis=0), bright_std_floor)
+    return BackgroundModel(
+        chroma_mean=c.mean(axis=0).astype(np.float32),
+        chroma_inv_var=(1.0 / c_std**2).astype(np.float32),
+        bright_mean=b.mean(axis=0).astype(np.float32),
+        bright_std=b_std.astype(np.float32),
+        n_frames=int(f.shape[0]),
+    )
+
+
+def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
+                   params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """Per-pixel classification before clean-up (numba kernel; reference :func:`raw_foreground_reference`).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    params : BackgroundParams
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    if frame.shape[:2] != model.shape or frame.ndim != 3:
+        raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
+    out = np.empty(model.shape, bool)
+    f32 = np.float32
+    foreground_kernel(np.ascontiguousarray(frame, np.uint8), np.ascontiguousarray(model.chroma_mean, f32),
+                      np.ascontiguousarray(model.chroma_inv_var, f32), np.ascontiguousarray(model.bright_mean, f32),
+                      np.ascontiguousarray(model.bright_std, f32), params.chroma_threshold, params.shadow_ratio,
+                      params.highlight_ratio, params.brightness_sigmas, params.dark_level, out)
+    return out
+
+
+def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
+                   params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """Plain-numpy reference of :func:`raw_foreground` (a test holds the two equal).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    params : BackgroundParams
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    if frame.shape[:2] != model.shape or frame.ndim != 3:
+        raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
+    c, b = _chroma_bright(frame)
+    d = c - model.chroma_mean
+    maha = np.sqrt((d * d * model.chroma_inv_var).sum(axis=-1))
+    ratio = b / np.maximum(model.bright_mean, 1.0)
+    margin = params.brightness_sigmas * model.bright_std / np.maximum(model.bright_mean, 1.0)
+    bright_fg = (ratio < params.shadow_ratio - margin) | (ratio > params.highlight_ratio + margin)
+    lit = (model.bright_mean > params.dark_level) & (b > params.dark_level)
+    return bright_fg | (lit & (maha > params.chroma_threshold))
+
+
+def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """Opening, closing, largest connected component, holes filled.
+
+    After the opening everything happens in the box round what is left, grown by the closing's
+    size plus one pixel: the result is the same as on the whole image (outside the box the closed
+    mask is empty, and every background pixel there reaches the image border), and the
+    connected-component pass, the costliest step (0.5 ms of a 320 x 240 frame, 0.15 ms on the
+    box), sees a few times fewer pixels. :func:`clean_mask_reference` is the whole-image form.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+
+    Returns
+    -------
+    (H, W) bool
+        Empty if the largest component is smaller than ``min_area_frac`` of the image.
+    """
+    m = _opened(mask, params)
+    out = np.zeros(mask.shape, bool)
+    x, y, w, h = cv2.boundingRect(m)
+    if w == 0 or h == 0:
+        return out
+    pad = max(params.close_px, 0) + 1
+    ys = slice(max(y - pad, 0), min(y + h + pad, m.shape[0]))
+    xs = slice(max(x - pad, 0), min(x + w + pad, m.shape[1]))
+    box = _largest_filled(np.ascontiguousarray(m[ys, xs]), params, mask.size)
+    if box is not None:
+        out[ys, xs] = box
+    return out
+
+
+def clean_mask_reference(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """:func:`clean_mask` on the whole image (a test holds the two equal); ``mask (H, W) bool``
+    -> ``(H, W) bool``."""
+    m = _opened(mask, params)
+    box = _largest_filled(m, params, mask.size)
+    return np.zeros(mask.shape, bool) if box is None else box
+
+
+def _opened(mask: NDArray[np.bool_], params: BackgroundParams) -> NDArray[np.uint8]:
+    m = np.asarray(mask, dtype=np.uint8)
+    if params.open_px > 1:
+        m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_OPEN, _ellipse(params.open_px)), dtype=np.uint8)
+    return m
+
+
+def _ellipse(size: int) -> NDArray[np.uint8]:
+    return np.asarray(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)), dtype=np.uint8)
+
+
+def _largest_filled(m: NDArray[np.uint8], params: BackgroundParams, image_size: int) -> NDArray[np.bool_] | None:
+    """Closing, the largest 8-connected component and its holes filled, of the opened ``m``
+    ``(h, w) uint8``; None if that component is under ``min_area_frac`` of ``image_size`` pixels."""
+    if params.close_px > 1:
+        m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_CLOSE, _ellipse(params.close_px)), dtype=np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return None
+    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    if stats[k, cv2.CC_STAT_AREA] < params.min_area_frac * image_size:
+        return None
+    # fill holes: background regions not 4-connected to the border (flood the background from a
+    # one-pixel frame around the image; what the flood does not reach is inside the body)
+    h, w = m.shape
+    outside = np.zeros((h + 2, w + 2), np.uint8)
+    outside[1:-1, 1:-1] = labels == k
+    cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+    filled: NDArray[np.bool_] = outside[1:-1, 1:-1] != 2
+    return filled
+
+
+def subtract(model: BackgroundModel, frame: NDArray[np.uint8],
+             params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+    """The subject's silhouette in a frame.
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+        BGR frame at the model's resolution.
+    params : BackgroundParams
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    return clean_mask(raw_foreground(model, frame, params), params)
+
+
+def update_background(model: BackgroundModel, frame: NDArray[np.uint8], foreground: NDArray[np.bool_],
+                      rate: float = 0.01) -> BackgroundModel:
+    """Slow adaptive update of the background pixels (running mean and variance).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    foreground : (H, W) bool
+        Pixels to leave untouched (the subject, dilated by the caller if desired).
+    rate : float
+        Learning rate in (0, 1).
+
+    Returns
+    -------
+    BackgroundModel
+    """
+    if not 0 < rate < 1:
+        raise ValueError("rate must be in (0, 1)")
+    c, b = _chroma_bright(frame)
+    w = np.where(foreground, 0.0, rate).astype(np.float32)
+    cm = model.chroma_mean + w[..., None] * (c - model.chroma_mean)
+    c_var = 1.0 / model.chroma_inv_var
+    c_var = c_var + w[..., None] * ((c - cm) ** 2 - c_var)
+    bm = model.bright_mean + w * (b - model.bright_mean)
+    b_var = model.bright_std**2 + w * ((b - bm) ** 2 - model.bright_std**2)
+    return replace(
+        model,
+        chroma_mean=cm.astype(np.float32),
+        chroma_inv_var=(1.0 / np.maximum(c_var, 0.004**2)).astype(np.float32),
+        bright_mean=bm.astype(np.float32),
+        bright_std=np.sqrt(np.maximum(b_var, 4.0)).astype(np.float32),
+    )

@@ -1,0 +1,250 @@
+"""Frame sources behind one interface: iterate ``(timestamp, frame)`` pairs.
+
+``synthetic[:FILE]``  the built-in synthetic scene (default motion: a shipped gesture script)
+``camera[:INDEX]``    a camera through OpenCV, retried when it disappears
+``video:PATH``        a video file
+``frames:DIR``        a folder of images, in name order
+
+A broken or missing frame is skipped and counted (``counters["bad_frames"]``); input problems
+never raise out of the iterator, except a source that cannot be opened at all
+(:class:`SourceError`, raised by :func:`open_source`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["FrameSource", "SourceError", "SourceSpec", "open_source", "parse_source"]
+
+log = logging.getLogger(__name__)
+
+_IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm"}
+
+
+class SourceError(RuntimeError):
+    """A source that cannot be opened (the message names it)."""
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed ``--source`` value."""
+
+    kind: str
+    arg: str = ""
+
+
+def parse_source(text: str) -> SourceSpec:
+    """Parse ``synthetic[:FILE]``, ``camera[:INDEX]``, ``video:PATH`` or ``frames:DIR``.
+
+    Raises
+    ------
+    ValueError
+        Unknown kind or missing argument.
+    """
+    kind, _, arg = text.partition(":")
+    kind = kind.strip().lower()
+    if kind not in ("synthetic", "camera", "video", "frames"):
+        raise ValueError(f"unknown source {text!r}: use synthetic[:FILE], camera[:INDEX], video:PATH or frames:DIR")
+    if kind in ("video", "frames") and not arg:
+        raise ValueError(f"source {kind} needs a path: {kind}:PATH")
+    if kind == "camera" and arg and not arg.isdigit():
+        raise ValueError(f"camera index must be a number, got {arg!r}")
+    return SourceSpec(kind, arg)
+
+
+class FrameSource(Protocol):
+    """What the tracker reads frames from."""
+
+    counters: dict[str, int]
+
+    def __iter__(self) -> Iterator[tuple[float, NDArray[np.uint8]]]: ...
+
+    def close(self) -> None: ...
+
+
+def _as_bgr(img: Any, size: tuple[int, int] | None) -> NDArray[np.uint8] | None:
+    if img is None or not isinstance(img, np.ndarray) or img.size == 0:
+        return None
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    elif img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif img.ndim != 3 or img.shape[2] != 3:
+        return None
+    if img.dtype != np.uint8:  # 16-bit or float images: stretch to 8 bits
+        f = img.astype(np.float64)
+        lo, hi = float(f.min()), float(f.max())
+        img = ((f - lo) * (255.0 / max(hi - lo, 1e-12))).astype(np.uint8)
+    if size is not None and (img.shape[1], img.shape[0]) != size:
+        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img)
+
+
+@dataclass
+class FolderSource:
+    """Images of a folder in name order; unreadable files are skipped and counted."""
+
+    folder: Path
+    size: tuple[int, int] | None = None
+    fps: float = 30.0
+    counters: dict[str, int] = field(default_factory=lambda: {"frames": 0, "bad_frames": 0})
+
+    def __post_init__(self) -> None:
+        if not self.folder.is_dir():
+            raise SourceError(f"frames folder not found: {self.folder}")
+        self.files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in _IMAGE_EXT)
+        if not self.files:
+            raise SourceError(f"no images ({', '.join(sorted(_IMAGE_EXT))}) in {self.folder}")
+
+    def __iter__(self) -> Iterator[tuple[float, NDArray[np.uint8]]]:
+        for k, f in enumerate(self.files):
+            img = _as_bgr(cv2.imread(str(f), cv2.IMREAD_UNCHANGED), self.size)
+            if img is None:
+                self.counters["bad_frames"] += 1
+                log.warning("skipping unreadable image %s", f)
+                continue
+            self.counters["frames"] += 1
+            yield k / self.fps, img
+
+    def close(self) -> None:
+        return None
+
+
+@dataclass
+class CaptureSource:
+    """A cv2.VideoCapture (camera index or video file). A camera that stops delivering is
+    reopened every ``retry_s`` seconds (counted in ``reconnects``) until ``stop`` is set."""
+
+    target: int | str
+    size: tuple[int, int] | None = None
+    retry_s: float = 1.0
+    max_retries: int | None = None
+    counters: dict[str, int] = field(default_factory=lambda: {"frames": 0, "bad_frames": 0, "reconnects": 0})
+    stopped: bool = False
+
+    def __post_init__(self) -> None:
+        self.is_camera = isinstance(self.target, int)
+        if not self.is_camera and not Path(str(self.target)).is_file():
+            raise SourceError(f"video file not found: {self.target}")
+        self.cap = self._open()
+        if self.cap is None:
+            raise SourceError(f"cannot open {'camera' if self.is_camera else 'video'} {self.target}")
+        fps = float(self.cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        self.fps = fps if 1.0 <= fps <= 240.0 else 30.0
+
+    def _open(self) -> Any:
+        cap = cv2.VideoCapture(self.target)
+        if not cap.isOpened():
+            cap.release()
+            return None
+        return cap
+
+    def __iter__(self) -> Iterator[tuple[float, NDArray[np.uint8]]]:
+        t0 = time.monotonic()
+        k = 0
+        misses = 0
+        retries = 0
+        while not self.stopped:
+            ok, img = self.cap.read() if self.cap is not None else (False, None)
+            frame = _as_bgr(img, self.size) if ok else None
+            if frame is not None:
+                misses = 0
+                self.counters["frames"] += 1
+                ts = (time.monotonic() - t0) if self.is_camera else k / self.fps
+                k += 1
+                yield ts, frame
+                continue
+            if not self.is_camera:
+                if ok:  # decoded but unusable
+                    self.counters["bad_frames"] += 1
+                    continue
+                return  # end of the video
+            misses += 1
+            self.counters["bad_frames"] += 1
+            if misses >= 5:  # the camera is gone: reopen it
+                if self.max_retries is not None and retries >= self.max_retries:
+                    log.error("camera %s did not come back after %d retries", self.target, retries)
+                    return
+                log.warning("camera %s stopped delivering frames; reopening", self.target)
+                if self.cap is not None:
+                    self.cap.release()
+                time.sleep(self.retry_s)
+                self.cap = self._open()
+                retries += 1
+                self.counters["reconnects"] += 1
+                misses = 0
+
+    def close(self) -> None:
+        self.stopped = True
+        if self.cap is not None:
+            self.cap.release()
+            self.cap = None
+
+
+@dataclass
+class SyntheticSource:
+    """Frames of the synthetic scene (the ground truth stays available in :attr:`last_truth`)."""
+
+    scene: Any  # tracker_service.scene.synthetic.SyntheticScene (imported lazily: it needs an EGL context)
+    counters: dict[str, int] = field(default_factory=lambda: {"frames": 0, "bad_frames": 0})
+    last_truth: Any = None
+
+    def __iter__(self) -> Iterator[tuple[float, NDArray[np.uint8]]]:
+        for i in range(self.scene.n_frames):
+            f = self.scene.frame(i)
+            self.last_truth = f.truth
+            self.counters["frames"] += 1
+            yield f.timestamp, f.image
+
+    def close(self) -> None:
+        self.scene.close()
+
+
+def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path | None = None,
+                seed: int = 0, empty_prefix: int = 15, loop: bool = False) -> FrameSource:
+    """Open a frame source.
+
+    Parameters
+    ----------
+    spec : SourceSpec
+    size : (int, int)
+        ``(width, height)`` every frame is resized to.
+    default_motion : Path, optional
+        Motion of ``synthetic`` without a file.
+    seed : int
+        Synthetic scene seed.
+    empty_prefix : int
+        Empty-room frames before the person appears (synthetic only).
+    loop : bool
+        Unused for now (reserved for looping sources).
+
+    Raises
+    ------
+    SourceError
+    """
+    if spec.kind == "frames":
+        return FolderSource(Path(spec.arg), size)
+    if spec.kind == "video":
+        return CaptureSource(spec.arg, size)
+    if spec.kind == "camera":
+        return CaptureSource(int(spec.arg or 0), size)
+    from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
+
+    motion = Path(spec.arg) if spec.arg else default_motion
+    if motion is None or not motion.is_file():
+        raise SourceError(f"synthetic source: motion file not found: {motion}")
+    try:
+        scene = SyntheticScene.from_file(str(motion), seed=seed,
+                                         config=SceneConfig(width=size[0], height=size[1], empty_prefix=empty_prefix))
+    except (OSError, ValueError) as e:
+        raise SourceError(f"synthetic source: {e}") from None
+    return SyntheticSource(scene)

@@ -30,14 +30,16 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from protocol import fk
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import index_entries, mocap_root
-from protocol.motion import ground, load_motion
+from protocol.motion import ground
 from tracker_service.app.evaluate import EvalOptions, evaluate_motion
 from tracker_service.app.tracker_cli import ensure_appearance, ensure_db
 from tracker_service.body.family import BODY_MODELS
 from tracker_service.body.raster import render_silhouette, silhouette_runs_batch
 from tracker_service.build.database import is_held_out
 from tracker_service.camera import default_camera
+from tracker_service.estimators.base import Observation
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.pipeline.process import TrackerConfig
 from tracker_service.pipeline.warmup import warm_up
@@ -87,7 +89,7 @@ def pyramid_speedup(loaded: Any, n_frames: int = 60) -> dict[str, float]:
             obs = observed_placement(mask, cam)
             t0 = time.perf_counter()
             feats = preprocess(mask, "xor") if sizes is None else preprocess(mask, "xor", sizes=sizes)
-            st, _ = step(st, db, feats, FilterParams(), obs)
+            st, _ = step(st, db, Observation(feats, obs), FilterParams())
             t_sum += time.perf_counter() - t0
         times[name] = 1000 * t_sum / len(truth)
     return {"pyramid_ms": round(times["pyramid"], 2), "full_resolution_ms": round(times["full_resolution"], 2),

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body
 from tracker_service.body.family import body_model
 from tracker_service.camera import Camera
+from tracker_service.estimators.base import Observation
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.silhouette.features import LevelFeatures
 from tracker_service.silhouette.placement import scaled_placement
@@ -70,7 +71,7 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
     for name in candidates:
         k = body_model(name).body.height / h_db
         obs = scaled_placement(np.asarray(observed, np.float64), k, camera)
-        _, est = step(initial_state(obs), db, features, params, obs)
+        _, est = step(initial_state(obs), db, Observation(features, obs), params)
         out.setdefault(name, []).append(float(est.distance))
     return out
 

@@ -107,6 +107,7 @@ def test_filter_prefers_the_leaf_whose_hands_are_on_skin(small_db) -> None:  # t
     from dataclasses import replace
 
     from tracker_service.cues.skin import HAND_PARTS
+    from tracker_service.estimators.base import Observation
     from tracker_service.estimators.tree_filter.filter import FilterParams, initial_state, step
     from tracker_service.silhouette.distance import runs_to_mask
     from tracker_service.silhouette.features import preprocess
@@ -139,7 +140,8 @@ def test_filter_prefers_the_leaf_whose_hands_are_on_skin(small_db) -> None:  # t
         for u, v in np.rint(hand_points(db.leaf_points)[target]).astype(int):
             img[v - 2: v + 3, u - 2: u + 3] = (131, 163, 212)
         skin = observe_skin(img, sil)
-        _, est = step(initial_state(), db, feats, replace(params, refine=len(db.leaf_poses)), None, skin)
+        _, est = step(initial_state(), db, Observation(feats, None, skin=skin),
+                      replace(params, refine=len(db.leaf_poses)))
         hands = hand_points(db.leaf_points)[est.leaf]
         assert np.linalg.norm(hands - hand_points(db.leaf_points)[target], axis=1).max() < 6.0, (target, est.leaf)
 

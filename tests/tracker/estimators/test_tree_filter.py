@@ -12,6 +12,7 @@ from tracker_service.body.family import body_model
 from tracker_service.body.raster import render_silhouette
 from tracker_service.build.database import heading_of, set_heading
 from tracker_service.camera import default_camera
+from tracker_service.estimators.base import LeafCost, Observation
 from tracker_service.estimators.tree_filter.filter import FilterParams, initial_state, predict_leaves, step
 from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.placement import observed_placement, placement_to_root, silhouette_rows
@@ -92,7 +93,8 @@ def test_tracks_a_take_of_another_body(small_db, screen: tuple[int, ...]) -> Non
     errs, errs_mean = [], []
     for f in range(0, len(poses), 2):
         mask = render_silhouette(truth[f], subject.capsule_radii, cam)
-        st, est = step(st, db, preprocess(mask), FilterParams(screen=screen), observed_placement(mask, cam))
+        obs = Observation(preprocess(mask), observed_placement(mask, cam))
+        st, est = step(st, db, obs, FilterParams(screen=screen))
         pose = est.pose_map.copy()
         pose[:3] = placement_to_root(est.placement, pose[:3], cam)
         j = fk(pose, body)
@@ -128,8 +130,8 @@ def test_a_leap_is_not_taken_for_a_step_back(small_db) -> None:  # type: ignore[
             pose[1] += lift
             truth = fk(pose, body)
             mask = render_silhouette(truth, body.capsule_radii, cam)
-            st, est = step(st, db, preprocess(mask), FilterParams(height_hypothesis=height_hypothesis),
-                           observed_placement(mask, cam), observed_rows=silhouette_rows(mask))
+            obs = Observation(preprocess(mask), observed_placement(mask, cam), silhouette_rows(mask))
+            st, est = step(st, db, obs, FilterParams(height_hypothesis=height_hypothesis))
             root = placement_to_root(est.placement, est.pose_map[:3], cam)
             if lift > 0.15:
                 depth_err.append(abs(float(cam.depth(root)) - float(cam.depth(truth[0]))))
@@ -235,15 +237,15 @@ def test_motion_prior_kernel_matches_numpy_reference(small_db, rng: np.random.Ge
 
 
 def test_the_shoe_cost_reweights_the_leaf_posterior(small_db) -> None:  # type: ignore[no-untyped-def]
-    """``step(..., shoe_cost=)`` adds ``shoe_weight * (cost - min)`` to the leaves' negative log
+    """A shoe ``LeafCost`` in the observation adds ``shoe_weight * (cost - min)`` to the leaves' negative log
     likelihood: a leaf the cue favours gains weight, nothing changes at weight 0 or without a cue."""
     db, _, motions, _, _ = small_db
     cam = default_camera()
     subject = body_model("mLA").body
     mask = render_silhouette(fk(motions[0].poses[10], subject), subject.capsule_radii, cam)
     feats, obs = preprocess(mask), observed_placement(mask, cam)
-    st, _ = step(initial_state(), db, feats, FilterParams(), obs)
-    base_st, base = step(st, db, feats, FilterParams(), obs)
+    st, _ = step(initial_state(), db, Observation(feats, obs), FilterParams())
+    base_st, base = step(st, db, Observation(feats, obs), FilterParams())
     seen: list[tuple[np.ndarray, np.ndarray]] = []
 
     fav = int(base_st.leaves[np.argsort(-base_st.weights)[1]])  # the runner-up
@@ -253,12 +255,13 @@ def test_the_shoe_cost_reweights_the_leaf_posterior(small_db) -> None:  # type: 
         return np.where(leaves == fav, 0.0, 200.0)
 
     for weight, fn in ((0.0, favour_last), (0.02, lambda leaves, places: None)):
-        st0, est0 = step(st, db, feats, FilterParams(shoe_weight=weight), obs, shoe_cost=fn)
+        st0, est0 = step(st, db, Observation(feats, obs, leaf_costs=(LeafCost("shoes", weight, fn),)), FilterParams())
         np.testing.assert_array_equal(st0.leaves, base_st.leaves)
         np.testing.assert_array_equal(st0.weights, base_st.weights)
         assert est0.leaf == base.leaf
     assert not seen  # weight 0: the cue is not even computed
-    st1, est1 = step(st, db, feats, FilterParams(shoe_weight=0.05), obs, shoe_cost=favour_last)
+    shoes = (LeafCost("shoes", 0.05, favour_last),)
+    st1, est1 = step(st, db, Observation(feats, obs, leaf_costs=shoes), FilterParams())
     (leaves, places), = seen
     assert places.shape == (len(leaves), 3) and fav in leaves
     w0 = dict(zip(base_st.leaves.tolist(), base_st.weights.tolist(), strict=True)).get(fav, 0.0)

@@ -164,7 +164,8 @@ def _shod(room: np.ndarray, mask: np.ndarray, rng: np.random.Generator, shoes: t
 
 def test_the_shoe_cue_weighs_the_filter_and_the_published_legs(small_db, rng: np.random.Generator,
                                                                 monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    import tracker_service.pipeline.process as pl
+    import tracker_service.pipeline.observe as observe_stage
+    import tracker_service.pipeline.publish as publish_stage
     from tracker_service.cues.shoes import ShoeParams
     from tracker_service.estimators.tree_filter.model import FilterParams
 
@@ -174,7 +175,7 @@ def test_the_shoe_cue_weighs_the_filter_and_the_published_legs(small_db, rng: np
     masks = [render_silhouette(truth[f], subject.capsule_radii, cam) for f in range(0, 40, 2)]
     frames = empty + [_shod(room, m, rng, (20, 220, 230)) for m in masks]
     calls: list[np.ndarray] = []
-    real = pl.feet_cost
+    real = observe_stage.feet_cost
 
     def recording(shoes, feet, params, shape=None):  # type: ignore[no-untyped-def]
         calls.append(feet.copy())
@@ -191,7 +192,8 @@ def test_the_shoe_cue_weighs_the_filter_and_the_published_legs(small_db, rng: np
         assert st.shoes is not None and len(poses) >= 10
         return poses, weights
 
-    monkeypatch.setattr(pl, "feet_cost", recording)
+    monkeypatch.setattr(observe_stage, "feet_cost", recording)  # the filter's leaf cost
+    monkeypatch.setattr(publish_stage, "feet_cost", recording)  # the published legs
     base = TrackerConfig(background_frames=6, init_frames=3)
     poses, weights = run(base)
     # the cue is computed on feet placed where the templates stand: within the person's box

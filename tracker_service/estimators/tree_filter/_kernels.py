@@ -374,7 +374,8 @@ def leaf_prior_kernel(leaves: NDArray[np.int64], weights: NDArray[np.float64], n
                       trans_idx: NDArray[np.int64], trans_p: NDArray[np.float32], hist_weight: float,
                       prior: NDArray[np.float64]) -> None:
     """Add the motion prior of the supported leaves to ``prior`` (eq. 13 with eq. 14's variances, and
-    the transition histograms of eq. 5): the loop of :func:`tracker_service.estimators.tree_filter.filter.predict_leaves`.
+    the transition histograms of eq. 5): the loop of
+    :func:`tracker_service.estimators.tree_filter.filter.predict_leaves`.
 
     Parameters
     ----------

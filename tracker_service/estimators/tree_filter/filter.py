@@ -18,20 +18,22 @@ camera). Per frame:
    pose over the retained leaves, and the visibility of each part (from the MAP template's part
    labels) that drives eq. 14 in the next frame.
 
-Everything here is a pure function of arrays: ``step(state, db, features, obs) -> (state, estimate)``.
+Everything here is a pure function of arrays: ``step(state, db, observation, params) -> (state, estimate)``;
+:class:`TreeFilter` is the same behind the estimator interface (:mod:`tracker_service.estimators.base`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache, partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from tracker_service.cues.skin import HAND_PARTS, SkinObservation, skin_cost
+from tracker_service.estimators.base import Estimate, Observation, leaf_cue_cost
 from tracker_service.estimators.tree_filter._kernels import (
     expand_kernel,
     heading_mass_kernel,
@@ -41,7 +43,7 @@ from tracker_service.estimators.tree_filter._kernels import (
     mean_pose_kernel,
     node_predictions_kernel,
 )
-from tracker_service.estimators.tree_filter.model import Estimate, FilterDB, FilterParams, FilterState
+from tracker_service.estimators.tree_filter.model import FilterDB, FilterParams, FilterState
 from tracker_service.estimators.tree_filter.reference import heading_mass_reference
 from tracker_service.silhouette.distance import evaluate_template_grid
 from tracker_service.silhouette.features import LevelFeatures
@@ -316,69 +318,63 @@ def _skin_cost(db: FilterDB, level: int, nodes: NDArray[np.int64], places: NDArr
     return params.skin_weight * c
 
 
-def _leaf_cues(leaves: NDArray[np.int64], places: NDArray[np.float64], params: FilterParams,
-               shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None,
-               appearance_cost: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None
-               ) -> NDArray[np.float64] | None:
-    """The leaf level's extra negative log likelihood: the shoe and appearance cues, each weighted
-    and taken relative to its cheapest leaf (None: neither applies)."""
-    out = None
-    if shoe_cost is not None and params.shoe_weight > 0:
-        c = shoe_cost(leaves, places)
-        if c is not None:
-            out = params.shoe_weight * (c - c.min())
-    if appearance_cost is not None and params.appearance_weight > 0:
-        c = appearance_cost(leaves)
-        if np.isfinite(c).all():  # (a non-finite cost would poison the posterior for good: skipped)
-            a = params.appearance_weight * (c - c.min())
-            out = a if out is None else out + a
-    return out
-
-
-def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params: FilterParams,
-         observed_placement: NDArray[np.float64] | None = None, skin: SkinObservation | None = None,
-         observed_rows: NDArray[np.float64] | None = None,
-         shoe_cost: Callable[[NDArray[np.int64], NDArray[np.float64]], NDArray[np.float64] | None] | None = None,
-         appearance_cost: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None = None,
-         proposals: NDArray[np.int64] | None = None,
+def step(state: FilterState, db: FilterDB, observation: Observation, params: FilterParams
          ) -> tuple[FilterState, Estimate]:
-    """One frame of tree-based filtering.
+    """One frame of tree-based filtering (eq. 1-6 over the levels of Algorithm 1's tree).
 
     Parameters
     ----------
     state : FilterState
     db : FilterDB
-    features : list of LevelFeatures
-        The observation, coarse to fine (:func:`tracker_service.silhouette.features.preprocess`).
+    observation : Observation
+        The frame as every estimator sees it (:class:`tracker_service.estimators.base.Observation`):
+        the features, coarse to fine; the placement measured from the silhouette (blended into the
+        prediction, used alone after a (re-)initialisation); the silhouette's rows (a second
+        placement hypothesis per node from its height: a body off the floor); the skin evidence
+        (where the hands may be); the cues' leaf costs, added to the leaf level's negative log
+        likelihood (:func:`tracker_service.estimators.base.leaf_cue_cost`); and the proposed leaves,
+        evaluated at the leaf level beside the tree's own candidates, each on the refinement grid
+        (±2 px, ±1 %) around its predicted placement, with its prior from the motion model like every
+        other leaf.
     params : FilterParams
-    observed_placement : (3,) float, optional
-        Placement measured directly from the silhouette (feet line and body centre); blended into
-        the prediction, and used alone after (re-)initialisation.
-    skin : SkinObservation, optional
-        The frame's skin evidence (:func:`tracker_service.cues.skin.observe_skin`): where the hands may be.
-    observed_rows : (2,) float, optional
-        Top and bottom rows of the silhouette (:func:`tracker_service.silhouette.placement.silhouette_rows`):
-        a second placement hypothesis per node from the silhouette's height (a body off the floor).
-    shoe_cost : callable, optional
-        ``shoe_cost(leaves (n,) int64, places (n, 3)) -> (n,) float64 or None``: the shoe cue's
-        cost of leaves at placements (:func:`tracker_service.cues.shoes.feet_cost`), added to eq. 6's
-        negative log likelihood at the leaf level times ``params.shoe_weight``.
-    appearance_cost : callable, optional
-        ``appearance_cost(leaves (n,) int64) -> (n,) float64``: the appearance cue's cost of leaves
-        (:func:`tracker_service.cues.appearance.joints_cost`), added to the leaf level's negative log
-        likelihood times ``params.appearance_weight``.
-    proposals : (n,) int64, optional
-        Leaves proposed by another estimator (the appearance cue's nearest leaves,
-        :func:`tracker_service.cues.appearance.propose_leaves`): evaluated at the leaf level beside the
-        tree's own candidates, each on the refinement grid (±2 px, ±1 %) around its predicted
-        placement (both hypotheses of :func:`_node_predictions` when the height hypothesis is on),
-        with its prior from the motion model like every other leaf.
 
     Returns
     -------
     state : FilterState
     estimate : Estimate
     """
+    features, skin = observation.features, observation.skin
+    pr = _prediction(state, observation, params)
+    predict_nodes = partial(_node_predictions, db, pred=pr.pred, obs_weight=pr.w_obs, obs=pr.obs, rows=pr.sil_rows,
+                            scale_range=pr.s_range)
+    prior = predict_leaves(state, db, params)
+    tree = db.tree
+    bounds = np.concatenate([[0], np.cumsum(tree.level_sizes)]).astype(np.int64)
+    all_priors = np.zeros(int(bounds[-1]))
+    level_priors_kernel(db.leaf_anc, prior, bounds, all_priors)  # eq. 4 (reference: np.bincount)
+    sr = _search(db, features, params, skin, pr.motion_scale, predict_nodes, all_priors, bounds)
+    if observation.proposals is not None and len(observation.proposals):
+        sr = _with_proposals(sr, np.asarray(observation.proposals, np.int64), db, features, params, skin,
+                             pr.motion_scale, predict_nodes, all_priors[bounds[-2]: bounds[-1]])
+    return _estimate(state, sr, observation, db, features, params, pr, predict_nodes)
+
+
+class _Prediction(NamedTuple):
+    """Where the subject is expected this frame (the placement part of eq. 2)."""
+
+    pred: NDArray[np.float64]  # (3,) predicted placement, blended with the observed one
+    w_obs: float  # the observed placement's weight in that blend
+    obs: NDArray[np.float64] | None  # the observed placement
+    sil_rows: NDArray[np.float64] | None  # the silhouette's rows when the feet line rose (height hypothesis)
+    s_range: tuple[float, float]  # scales the height hypothesis may take
+    motion_scale: float  # the predicted scale before the blend
+    fresh: bool  # no posterior yet (initialisation)
+
+
+def _prediction(state: FilterState, observation: Observation, params: FilterParams) -> _Prediction:
+    """The predicted placement: constant velocity, blended with the placement observed from the feet
+    line (alone after a (re-)initialisation); the height hypothesis when the feet line rose."""
+    observed_placement, observed_rows = observation.placement, observation.rows
     fresh = len(state.leaves) == 0
     pred = state.placement + 0.5 * state.velocity
     sil_rows = None
@@ -394,24 +390,38 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
         obs = np.asarray(observed_placement, np.float64)
         w_obs = 1.0 if fresh else params.observation_weight
         pred = w_obs * obs + (1 - w_obs) * pred
-    prior = predict_leaves(state, db, params)
+    return _Prediction(pred, w_obs, obs, sil_rows, s_range, motion_scale, fresh)
+
+
+class _Search(NamedTuple):
+    """The leaf level reached by the coarse-to-fine search."""
+
+    nodes: NDArray[np.int64]  # (n,) leaves
+    node_place: NDArray[np.float64]  # (n, 3) each one's best placement
+    cost: NDArray[np.float64]  # (n,) its negative log likelihood there
+    logpost: NDArray[np.float64]  # (n,) log posterior (eq. 1), unnormalised
+    post: NDArray[np.float64]  # (n,) posterior (sum 1)
+    evals: list[int]  # distance evaluations per level
+
+
+def _search(db: FilterDB, features: list[LevelFeatures], params: FilterParams, skin: SkinObservation | None,
+            motion_scale: float, predict_nodes: Callable[..., NDArray[np.float64]],
+            all_priors: NDArray[np.float64], bounds: NDArray[np.int64]) -> _Search:
+    """Eq. 1 and 6 level by level, coarse to fine: every candidate node on its placement grid, the
+    nodes whose posterior falls below a fraction of the level's best not expanded."""
     tree = db.tree
     n_levels = tree.n_levels
     nodes = np.arange(tree.level_sizes[0], dtype=np.int64)
-    centers = _node_predictions(db, 0, nodes, pred, w_obs, obs, sil_rows, s_range)  # (n, H, 3) at level 0
+    centers = predict_nodes(0, nodes)  # (n, H, 3) at level 0
     evals: list[int] = []
-    post = np.zeros(0)
+    post = logpost = cost = np.zeros(0)
     node_place = centers
-    cost = np.zeros(0)
-    bounds = np.concatenate([[0], np.cumsum(tree.level_sizes)]).astype(np.int64)
-    all_priors = np.zeros(int(bounds[-1]))
-    level_priors_kernel(db.leaf_anc, prior, bounds, all_priors)  # eq. 4 (reference: np.bincount)
     for lvl in range(n_levels):
         node_prior = all_priors[bounds[lvl]: bounds[lvl + 1]][nodes]
         shrink = 0.5**lvl
         grid = params.grid[lvl]
         offs = _offsets(params.step_px * shrink, params.step_scale * shrink, grid[0], grid[1])
-        node_pred = centers if lvl == 0 else _node_predictions(db, lvl, nodes, pred, w_obs, obs, sil_rows, s_range)
+        node_pred = centers if lvl == 0 else predict_nodes(lvl, nodes)
 
         neg_log = partial(_level_cost, db, features[lvl], lvl, nodes, centers, node_pred, params, motion_scale, skin)
         n_screen = params.screen[lvl] if lvl < len(params.screen) else 0
@@ -434,32 +444,46 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
             if n_lik:  # data-driven proposal: the best nodes by likelihood alone survive a misleading prior
                 keep = np.union1d(keep, np.argsort(cost)[:n_lik])
             # the kept nodes' children start from their parent's best placement, corrected for the
-            # difference of their template columns (numba; reference: filter_reference.expand_reference)
+            # difference of their template columns (numba; reference: reference.expand_reference)
             cols = db.level_column
             nodes, centers = expand_kernel(tree.child_ptr[lvl], nodes, np.ascontiguousarray(keep, np.int64),
                                            np.ascontiguousarray(node_place, np.float64),
                                            cols[lvl] if cols else np.zeros(0), cols[lvl + 1] if cols else np.zeros(0),
                                            bool(cols))
-    if proposals is not None and len(proposals):
-        extra = np.setdiff1d(np.asarray(proposals, np.int64), nodes)
-        if len(extra):  # the appearance cue's leaves, each on a small grid around its own predictions
-            last = n_levels - 1
-            ex_pred = _node_predictions(db, last, extra, pred, w_obs, obs, sil_rows, s_range)
-            t_ex, p_ex, n_ex = _level_cost(db, features[last], last, extra, ex_pred, ex_pred, params,
-                                           motion_scale, skin, slice(None), _offsets(2.0, 0.01, 3, 3))
-            evals[-1] += n_ex
-            b_ex = np.argmin(t_ex, axis=1)
-            r_ex = np.arange(len(extra))
-            c_ex = t_ex[r_ex, b_ex]
-            prior_ex = all_priors[bounds[last]: bounds[last + 1]][extra]
-            logpost = np.concatenate([logpost, np.log(np.maximum(prior_ex, 1e-300)) - c_ex])
-            nodes = np.concatenate([nodes, extra])
-            cost = np.concatenate([cost, c_ex])
-            node_place = np.concatenate([node_place, p_ex[r_ex, b_ex]])
-            post = np.exp(logpost - logpost.max())
-            post /= post.sum()
-    leaves = nodes
-    leaf_c = _leaf_cues(leaves, node_place, params, shoe_cost, appearance_cost)
+    return _Search(nodes, node_place, cost, logpost, post, evals)
+
+
+def _with_proposals(sr: _Search, proposals: NDArray[np.int64], db: FilterDB, features: list[LevelFeatures],
+                    params: FilterParams, skin: SkinObservation | None, motion_scale: float,
+                    predict_nodes: Callable[..., NDArray[np.float64]], leaf_priors: NDArray[np.float64]) -> _Search:
+    """The proposed leaves the search did not reach, each on a small grid around its own predictions,
+    with its prior from the motion model, added to the leaf level."""
+    extra = np.setdiff1d(proposals, sr.nodes)
+    if not len(extra):
+        return sr
+    last = db.tree.n_levels - 1
+    ex_pred = predict_nodes(last, extra)
+    t_ex, p_ex, n_ex = _level_cost(db, features[last], last, extra, ex_pred, ex_pred, params,
+                                   motion_scale, skin, slice(None), _offsets(2.0, 0.01, 3, 3))
+    evals = [*sr.evals[:-1], sr.evals[-1] + n_ex]
+    b_ex = np.argmin(t_ex, axis=1)
+    r_ex = np.arange(len(extra))
+    c_ex = t_ex[r_ex, b_ex]
+    logpost = np.concatenate([sr.logpost, np.log(np.maximum(leaf_priors[extra], 1e-300)) - c_ex])
+    post = np.exp(logpost - logpost.max())
+    post /= post.sum()
+    return _Search(np.concatenate([sr.nodes, extra]), np.concatenate([sr.node_place, p_ex[r_ex, b_ex]]),
+                   np.concatenate([sr.cost, c_ex]), logpost, post, evals)
+
+
+def _estimate(state: FilterState, sr: _Search, observation: Observation, db: FilterDB,
+              features: list[LevelFeatures], params: FilterParams, pr: _Prediction,
+              predict_nodes: Callable[..., NDArray[np.float64]]) -> tuple[FilterState, Estimate]:
+    """The cues' leaf costs added, the best leaves' placement refined at full resolution, the MAP
+    leaf, the tempered posterior mean of the support and the next state."""
+    leaves, node_place, cost, post, evals = sr.nodes, sr.node_place, sr.cost, sr.post, list(sr.evals)
+    n_levels = db.tree.n_levels
+    leaf_c = leaf_cue_cost(observation.leaf_costs, leaves, node_place)
     if leaf_c is not None:
         cost = cost + leaf_c
         logpost = np.log(np.maximum(post, 1e-300)) - leaf_c
@@ -471,9 +495,9 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     offs = _offsets(2.0, 0.01, 3, 3)
     d_ref, places = _eval_level(db, features[-1], n_levels - 1, leaves[top], node_place[top], offs)
     evals[-1] += d_ref.size
-    top_pred = _node_predictions(db, n_levels - 1, leaves[top], pred, w_obs, obs, sil_rows, s_range)
-    total = _cost(d_ref, places, top_pred, params.sigma[-1], params, motion_scale)
-    total = total + _skin_cost(db, n_levels - 1, leaves[top], places, skin, params)
+    top_pred = predict_nodes(n_levels - 1, leaves[top])
+    total = _cost(d_ref, places, top_pred, params.sigma[-1], params, pr.motion_scale)
+    total = total + _skin_cost(db, n_levels - 1, leaves[top], places, observation.skin, params)
     if leaf_c is not None:
         total = total + leaf_c[top, None]
     best = np.argmin(total, axis=1)
@@ -490,7 +514,7 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
     vis = db.leaf_visible[map_leaf]
     misses = state.misses + 1 if dist > params.lost_distance else 0
     reinit = misses >= params.lost_frames
-    vel = 0.5 * state.velocity + 0.5 * (place - state.placement) if not fresh else np.zeros(3)
+    vel = 0.5 * state.velocity + 0.5 * (place - state.placement) if not pr.fresh else np.zeros(3)
     new_state = FilterState(sup_leaves, w, place, vel, vis <= 0.0, misses, state.reinits)
     if reinit:
         new_state = initial_state(place, state.reinits + 1)
@@ -509,3 +533,32 @@ def step(state: FilterState, db: FilterDB, features: list[LevelFeatures], params
 def with_occlusion(state: FilterState, occluded: NDArray[np.bool_]) -> FilterState:
     """Override the occlusion flags (for DM1 vs DM2 comparisons: all False disables eq. 14)."""
     return replace(state, occluded=np.asarray(occluded, bool))
+
+
+@dataclass(frozen=True)
+class TreeFilter:
+    """The Okada-Stenger tree-based filter behind the estimator interface
+    (:class:`tracker_service.estimators.base.Estimator`).
+
+    Attributes
+    ----------
+    db : FilterDB
+        The template tree and its leaves.
+    params : FilterParams
+    """
+
+    db: FilterDB
+    params: FilterParams = field(default_factory=FilterParams)
+    name: str = "tree"
+
+    def init(self, placement: NDArray[np.float64] | None = None) -> FilterState:
+        """No pose information (:func:`initial_state`)."""
+        return initial_state(placement)
+
+    def step(self, state: FilterState, observation: Observation) -> tuple[FilterState, Estimate]:
+        """One frame (:func:`step`)."""
+        return step(state, self.db, observation, self.params)
+
+    def heading(self, state: FilterState) -> float | None:
+        """The support's heading (:func:`support_heading`); None with no support."""
+        return support_heading(state, self.db) if len(state.leaves) else None

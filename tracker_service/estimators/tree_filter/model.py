@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.skeleton import N_JOINTS, N_PARTS
+from tracker_service.estimators.base import Estimate
 from tracker_service.silhouette.distance import RunSet
 from tracker_service.templates.tree import TemplateTree
 
@@ -277,54 +278,3 @@ class FilterState:
     occluded: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_PARTS, bool))
     misses: int = 0
     reinits: int = 0
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """Result of one filter step.
-
-    Attributes
-    ----------
-    leaf : int
-        MAP leaf.
-    pose_map : (P,) float64
-        MAP leaf pose (reference placement; the caller turns the placement into a root position).
-    pose_mean : (P,) float64
-        Posterior-mean pose over the retained leaves.
-    placement : (3,) float64
-        ``(dx, dy, s)``, full-resolution pixels.
-    distance : float
-        Best full-resolution silhouette distance.
-    confidence : float
-        ``exp(-d^2 / (2 c^2))`` of the full-resolution distance (``c = confidence_scale``), in [0, 1].
-    visibility : (N_PARTS,) float32
-        Visible fraction of each part in the MAP template.
-    evaluations : tuple of int
-        Distance evaluations per level (Table 2).
-    reinitialised : bool
-    support_places : (K, 3) float64
-        Best placement of each of the ``K`` support leaves, in the order of the new
-        ``FilterState.leaves`` (which is empty after a re-initialisation).
-    support_cost : (K,) float64
-        Each support leaf's cost at that placement: eq. 6's negative log likelihood plus the
-        placement prior, the skin cue, the shoe cue (``FilterParams.shoe_weight``) and the
-        appearance cue (``FilterParams.appearance_weight``).
-    support_leaves : (K,) int64
-        The support leaves themselves (``FilterState.leaves`` before any re-initialisation).
-    support_weights : (K,) float64
-        Their posterior weights (sum 1), untempered.
-    """
-
-    leaf: int
-    pose_map: NDArray[np.float64]
-    pose_mean: NDArray[np.float64]
-    placement: NDArray[np.float64]
-    distance: float
-    confidence: float
-    visibility: NDArray[np.float32]
-    evaluations: tuple[int, ...]
-    reinitialised: bool
-    support_places: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
-    support_cost: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
-    support_leaves: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    support_weights: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))

@@ -36,8 +36,8 @@ def finite(x: NDArray[np.float64], fill: float = 0.0) -> NDArray[np.float64]:
 
 def motion_prior_reference(leaves: NDArray[np.int64], weights: NDArray[np.float64], db: FilterDB,
                            inv_var: NDArray[np.float64], hist_weight: float) -> NDArray[np.float64]:
-    """Reference of :func:`tracker_service.estimators.tree_filter._kernels.leaf_prior_kernel` (unnormalised eq. 13 + eq. 5
-    mass of the supported leaves).
+    """Reference of :func:`tracker_service.estimators.tree_filter._kernels.leaf_prior_kernel`
+    (unnormalised eq. 13 + eq. 5 mass of the supported leaves).
 
     Returns
     -------

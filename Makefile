@@ -3,7 +3,9 @@ SHELL := /bin/bash
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+# make demo installs the product only; make test adds the test tools and PyTorch (the training extra).
 STAMP := $(VENV)/.installed
+TEST_STAMP := $(VENV)/.installed-test
 # Debian packages a later stage needs (offscreen GL for pyrender via EGL/Mesa, ffmpeg-free video via OpenCV).
 APT_PACKAGES := libegl1 libgl1 libgles2 libegl-mesa0 libgl1-mesa-dri
 
@@ -12,8 +14,12 @@ APT_PACKAGES := libegl1 libgl1 libgles2 libegl-mesa0 libgl1-mesa-dri
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[dev]'
+	$(BIN)/python -m pip install -q -e .
 	@touch $(STAMP)
+
+$(TEST_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install -q -e '.[dev,train]'
+	@touch $(TEST_STAMP)
 
 apt:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
@@ -27,15 +33,15 @@ demo: $(STAMP) apt
 	$(BIN)/python -m tracker_service demo
 
 # pytest exits 5 when it collects no test: report it plainly instead of failing with make's code 2.
-test: $(STAMP) apt
+test: $(TEST_STAMP) apt
 	@$(BIN)/python -m pytest -q $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest: no tests were collected"; exit 0; fi; exit $$rc
 
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
-bench: $(STAMP) apt
+bench: $(TEST_STAMP) apt
 	$(BIN)/python bench/run_all.py
 
 clean-venv:

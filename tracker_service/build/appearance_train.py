@@ -54,15 +54,15 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """How the network is trained (defaults: the product's network, docs/TRACKER.md session 24).
+    """How the network is trained (defaults: the product's network, docs/TRACKER.md).
 
     Attributes
     ----------
     size : int
         Input side (pixels).
     width : int
-        Channels of the first convolution (the others are 2, 4, 8 and 8 times it). 24 since session
-        28 (16 before: the wider network's joints are 5 % better at +1.7 ms a frame, docs/TRACKER.md).
+        Channels of the first convolution (the others are 2, 4, 8 and 8 times it). 24: the joints are
+        5 % better than at 16, at +1.7 ms a frame (docs/TRACKER.md).
     passes : tuple of (int, int)
         ``(seed_base, every)`` per pass over the training takes: each pass renders every take on
         another person, every ``every``-th frame.
@@ -95,13 +95,14 @@ class TrainConfig:
     seed: int = 0
 
 
-#: The passes of each network of the product's ensemble (``train-appearance``'s default, session 26):
-#: the first is session 24's network; the second sees two other people per take and shares two passes.
+#: The passes of each network of the product's ensemble (``train-appearance``'s default): the first
+#: network sees :class:`TrainConfig`'s default passes; the second sees two other people per take and
+#: shares two passes with the first.
 MEMBER_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (
     ((1000, 3), (2000, 2), (3000, 2), (4000, 2)),
     ((5000, 2), (6000, 2), (2000, 2), (3000, 2)),
 )
-#: Each network's passes with varied postures (session 27; :mod:`tracker_service.build.posture_variation`).
+#: Each network's passes with varied postures (:mod:`tracker_service.build.posture_variation`).
 MEMBER_POSTURE_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((7000, 3),), ((8000, 3),))
 
 
@@ -155,7 +156,7 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
     Samples
         ``take`` left empty (the caller knows it).
     """
-    from protocol.motion import load_motion
+    from protocol.formats.load import load_motion
 
     from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
 
@@ -343,8 +344,9 @@ def _torch() -> Any:
     try:
         import torch
     except ImportError:
-        raise RuntimeError("training the appearance network needs PyTorch: pip install torch "
-                           "(the CPU build is enough; inference does not need it)") from None
+        raise RuntimeError("training the appearance network needs PyTorch, the 'train' extra: "
+                           "pip install -e '.[train]' (the CPU build is enough; the tracker itself does "
+                           "not need it)") from None
     return torch
 
 

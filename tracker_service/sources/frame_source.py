@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["FrameSource", "SourceError", "SourceSpec", "open_source", "parse_source"]
+__all__ = ["FrameSource", "SourceError", "SourceSpec", "fit_frame", "open_source", "parse_source"]
 
 log = logging.getLogger(__name__)
 
@@ -85,8 +85,35 @@ def _as_bgr(img: Any, size: tuple[int, int] | None) -> NDArray[np.uint8] | None:
         lo, hi = float(f.min()), float(f.max())
         img = ((f - lo) * (255.0 / max(hi - lo, 1e-12))).astype(np.uint8)
     if size is not None and (img.shape[1], img.shape[0]) != size:
-        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        img = fit_frame(img, size)
     return np.ascontiguousarray(img)
+
+
+def fit_frame(img: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:
+    """Bring a frame to the working size without changing its aspect: scale it so that it covers
+    ``size``, then crop the centre (a 16:9 frame loses its sides for a 4:3 working size). A
+    stretched frame would make every person wider or narrower than any template.
+
+    Parameters
+    ----------
+    img : (h, w, 3) uint8
+    size : (int, int)
+        ``(width, height)`` of the result.
+
+    Returns
+    -------
+    (height, width, 3) uint8
+        The principal point stays at the centre and the pixels stay square; the vertical field of
+        view is kept when the input is wider than ``size``, the horizontal one when it is taller.
+    """
+    W, H = size
+    h, w = img.shape[:2]
+    s = max(W / w, H / h)
+    rw, rh = max(W, round(w * s)), max(H, round(h * s))
+    interp = cv2.INTER_AREA if s < 1.0 else cv2.INTER_LINEAR
+    out = cv2.resize(img, (rw, rh), interpolation=interp)
+    x0, y0 = (rw - W) // 2, (rh - H) // 2
+    return out[y0:y0 + H, x0:x0 + W]
 
 
 @dataclass

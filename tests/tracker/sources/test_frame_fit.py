@@ -1,0 +1,34 @@
+"""Frames of any size reach the tracker at its working size with their aspect kept."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker_service.sources.frame_source import fit_frame
+
+
+def _disc(w: int, h: int, r: float) -> np.ndarray:
+    """A white disc of radius ``r`` (a fraction of the height) at the centre of a black frame."""
+    yy, xx = np.mgrid[:h, :w]
+    img = np.zeros((h, w, 3), np.uint8)
+    img[(xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2 <= (r * h) ** 2] = 255
+    return img
+
+
+@pytest.mark.parametrize("w,h", [(320, 240), (640, 480), (1280, 720), (720, 1280), (160, 90)])
+def test_a_circle_stays_a_circle(w: int, h: int) -> None:
+    out = fit_frame(_disc(w, h, 0.2), (320, 240))
+    assert out.shape == (240, 320, 3) and out.dtype == np.uint8
+    ys, xs = np.nonzero(out[..., 0] > 127)
+    width, height = np.ptp(xs) + 1, np.ptp(ys) + 1
+    assert abs(width / height - 1.0) < 0.05  # never stretched
+    assert abs(xs.mean() - 159.5) < 1.0 and abs(ys.mean() - 119.5) < 1.0  # the centre stays the centre
+
+
+def test_a_wide_frame_keeps_its_vertical_field_of_view() -> None:
+    img = np.zeros((720, 1280, 3), np.uint8)
+    img[:, 640 - 3:640 + 3] = 255  # a vertical line over the full height
+    out = fit_frame(img, (320, 240))
+    col = out[:, 158:162, 0].max(axis=1)
+    assert (col > 0).all()  # the whole height survives; the sides are cropped

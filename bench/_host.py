@@ -1,5 +1,5 @@
 """A host-speed probe for the benchmarks' JSON: the same machine kind runs 2x faster or slower
-from one session to the next (docs/BENCHMARKS.md, session 14), so every result records how long
+from one run to the next (docs/BENCHMARKS.md), so every result records how long
 this host takes for a fixed piece of work, and figures from two runs can be compared through it."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import time
 
 
 def host_probe(repeats: int = 3) -> float:
-    """Median seconds of a CPython loop of 10^7 integer additions (1.5 s on session 14's host)."""
+    """Median seconds of a CPython loop of 10^7 integer additions (about 1.5 s on the 2-core benchmark VM)."""
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()

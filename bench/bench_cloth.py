@@ -44,8 +44,8 @@ from cloth_client.contact.collision import CapsuleTrack  # noqa: E402
 from cloth_client.solver.cloth import ClothParams, build_model, initial_state, step  # noqa: E402
 from cloth_client.solver.driver import DriverConfig  # noqa: E402
 from cloth_client.solver.garment import DEFAULT_PARTICLES, make_sheet  # noqa: E402
+from protocol.formats.load import load_motion  # noqa: E402
 from protocol.formats.mocap_data import index_entries, mocap_root  # noqa: E402
-from protocol.motion import load_motion  # noqa: E402
 
 #: Recording used for the real-time factor (a 63 s dance with spins and crouches).
 RT_RECORDING = "bandai/dataset-1_dance-short_normal_001.bvh"

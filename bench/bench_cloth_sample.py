@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/bench_cloth_sample.py --baseline ../main/out/bench_cloth_s3 [--garment skirt]
 
-The sample (session 4): 22 skirt recordings that failed the strain target on main in session 3
+The sample: 22 skirt recordings that once failed the strain target
 (waistband row, hands on the hip, dressing, borderline) and 4 that passed, for regressions. Prints
 per recording the baseline and new max strain, max penetration, frames over 10 % and real-time
 factor, then the counts within 10 % strain and 1 cm penetration. Not a test.
@@ -20,8 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cloth_client.app.offline import simulate_motion  # noqa: E402
+from protocol.formats.load import load_motion  # noqa: E402
 from protocol.formats.mocap_data import mocap_root  # noqa: E402
-from protocol.motion import load_motion  # noqa: E402
 
 SAMPLE = [f"bandai/dataset-{name}.bvh" for name in (
     "1_walk-right_sad_001", "1_bow_sad_001", "1_walk-left_sad_001", "1_walk_not-confident_001", "1_bow_normal_001",

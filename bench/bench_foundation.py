@@ -20,8 +20,8 @@ from tqdm import tqdm
 
 from protocol import POSE_SIZE, default_body, fk
 from protocol.formats.bvh import read_bvh
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import index_entries, mocap_root
-from protocol.motion import load_motion
 from tracker_service.templates.pruning import prune_poses
 
 

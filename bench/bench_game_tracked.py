@@ -17,9 +17,9 @@ so it varies body size and shape, outfit, room and lighting), the motion is
 3. tracked frame by frame from the pixels with :func:`tracker_service.pipeline.process.process_frame` (the
    loop of :func:`tracker_service.app.evaluate.evaluate_motion`, without forced losses; settings as
    ``mocap-tracker eval``: xor distance, occlusion dynamics, body model chosen automatically, and the
-   appearance cue when its network file exists, as ``mocap-tracker run`` does — since session 27;
+   appearance cue when its network file exists, as ``mocap-tracker run`` does;
    ``--appearance off`` is the tracker without it, which is what this benchmark measured before.
-   The game's scripts are in the default database and, since session 27, in the network's
+   The game's scripts are in the default database and in the network's
    training data too, played by other synthetic people: the paper built its game database from
    the game's own motions),
 4. fed to a fresh :class:`game_client.gestures.GestureRecognizer` with the tracker's joints,
@@ -59,7 +59,7 @@ from game_client.gestures import GestureEvent, GestureRecognizer, RecognizerConf
 from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
 from protocol.motion import Motion
 from protocol.skeleton import N_JOINTS, N_PARTS
-from tracker_service.app.tracker_cli import ensure_appearance, ensure_db
+from tracker_service.app.resources import ensure_appearance, ensure_db
 from tracker_service.body.family import BODY_MODELS
 from tracker_service.cues.appearance import AppearanceNet
 from tracker_service.estimators.tree_filter.filter import FilterParams

@@ -25,9 +25,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import mocap_root
 from protocol.kinematics import fk
-from protocol.motion import load_motion
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
 from tracker_service.body.family import BODY_MODELS, body_model
 from tracker_service.body.mesh import BodyMesh

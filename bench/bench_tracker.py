@@ -34,7 +34,7 @@ from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import index_entries, mocap_root
 from protocol.motion import ground
 from tracker_service.app.evaluate import EvalOptions, evaluate_motion
-from tracker_service.app.tracker_cli import ensure_appearance, ensure_db
+from tracker_service.app.resources import ensure_appearance, ensure_db
 from tracker_service.body.family import BODY_MODELS
 from tracker_service.body.raster import render_silhouette, silhouette_runs_batch
 from tracker_service.build.database import is_held_out
@@ -148,24 +148,24 @@ def main() -> int:
         "xor_shoes_publish_only": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.0)),
         "xor_map_pose": TrackerConfig(distance="xor", use_mean_pose=False),
         "xor_no_height_hypothesis": TrackerConfig(distance="xor", filter=FilterParams(height_hypothesis=False)),
-        # the likelihood-driven proposals of sessions 6-15 (half as many as the default's)
+        # half as many likelihood-driven proposals as the default
         "xor_proposals_48_96": TrackerConfig(distance="xor", filter=FilterParams(keep_likelihood=(48, 96))),
-        # every node on its whole placement grid (no screening: the search before session 6)
+        # every node on its whole placement grid (no screening)
         "xor_exhaustive": TrackerConfig(distance="xor", filter=FilterParams(screen=())),
         # no selection: the person's own measurements given (the user enters them; --measurements)
         "xor_given_height": TrackerConfig(distance="xor"),
         "xor_given_measurements": TrackerConfig(distance="xor"),
-        # no appearance cue (the tracker of sessions 16-23)
+        # no appearance cue (a fresh install without the network)
         "xor_no_appearance": TrackerConfig(distance="xor"),
-        # the appearance cue in the filter only: the published pose not refined toward its joints (session 24)
+        # the appearance cue in the filter only: the published pose not refined toward its joints
         "xor_no_refine": TrackerConfig(distance="xor", refine=None),
-        # the network reads the crop once, not also mirrored (session 25's first run)
+        # the network reads the crop once, not also mirrored
         "xor_no_mirror": TrackerConfig(distance="xor", appearance_mirror=False),
-        # the selected model's bone proportions kept (before session 25's proportions from the cue)
+        # the selected model's bone proportions kept (no proportions from the cue)
         "xor_no_proportions": TrackerConfig(distance="xor", proportions=None),
-        # the refinement toward each frame's raw reading, not the Kalman-filtered one (as in session 25)
+        # the refinement toward each frame's raw reading, not the Kalman-filtered one
         "xor_no_reading_filter": TrackerConfig(distance="xor", reading_filter=None),
-        # the ensemble's first network alone (session 24's), everything else as the default
+        # the ensemble's first network alone, everything else as the default
         "xor_one_network": TrackerConfig(distance="xor"),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not

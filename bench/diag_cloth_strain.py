@@ -1,6 +1,6 @@
 """Where a garment's strain comes from, frame by frame: for every frame whose largest structural
 strain is over 10 %, the worst spring's grid row and the body capsules nearest to its two particles.
-Not a test; a diagnosis aid (session 4 used it to find the waistband-row class of the skirt).
+Not a test; a diagnosis aid (it found the waistband-row class of the skirt).
 
     .venv/bin/python bench/diag_cloth_strain.py skirt bandai/dataset-1_bow_sad_001.bvh [more.bvh ...]
 
@@ -24,8 +24,8 @@ from cloth_client.contact.collision import round_cone_np  # noqa: E402
 from cloth_client.solver.cloth import structural_strain  # noqa: E402
 from cloth_client.solver.driver import ClothDriver  # noqa: E402
 from cloth_client.solver.garment import make_garment  # noqa: E402
+from protocol.formats.load import load_motion  # noqa: E402
 from protocol.formats.mocap_data import mocap_root  # noqa: E402
-from protocol.motion import load_motion  # noqa: E402
 from protocol.skeleton import CAPSULE_INDEX  # noqa: E402
 
 NAMES = {v: k for k, v in CAPSULE_INDEX.items()}

@@ -1,7 +1,7 @@
 """Where the avatar's sunk-limb correction jumps: for every recording, the frame pairs on which a
 forearm or hand that is active (not ghosted: sunk at most ``DriverConfig.ghost_depth`` into the
 trunk after the correction) on both frames moves more than 2 cm further than the recorded one.
-Not a test; a diagnosis aid (session 11 used it to find the flips of the nearest trunk surface
+Not a test; a diagnosis aid (it found the flips of the nearest trunk surface
 that :func:`cloth_client.avatar.limb_clearance.clear_limbs_track` now carries over). As in the cloth
 driver, the correction runs over interpolation keys at most ``DriverConfig.key_dt`` apart; the
 pairs compared are the recording's consecutive frames.
@@ -27,8 +27,8 @@ sys.path.insert(0, str(ROOT))
 from cloth_client.avatar.capsules import capsule_endpoints, interpolate_poses  # noqa: E402
 from cloth_client.avatar.limb_clearance import LIMBS, MAX_PUSH, TRUNK, _axis_depth, clear_limbs  # noqa: E402
 from cloth_client.solver.driver import DriverConfig  # noqa: E402
+from protocol.formats.load import load_motion  # noqa: E402
 from protocol.formats.mocap_data import index_entries, recording_path  # noqa: E402
-from protocol.motion import load_motion  # noqa: E402
 from protocol.skeleton import CAPSULES  # noqa: E402
 
 EXCESS = 0.02  # metres

@@ -13,7 +13,7 @@ Usage::
 
 ``--true-height`` gives the tracker the subject's true stature instead of the body selection's
 choice (the templates' scale; the output skeleton stays the selected model's): an upper bound of
-what a better height estimate can give (session 12: -0.18 / +0.02 / -0.20 cm on subjects 11 / 7 / 3
+what a better height estimate can give (measured: -0.18 / +0.02 / -0.20 cm on subjects 11 / 7 / 3
 over all 51 held-out takes). A diagnostic, not a test: it takes minutes. No forced losses
 (the loop is :func:`tracker_service.app.evaluate.evaluate_motion`'s, with a per-frame hook).
 """
@@ -28,16 +28,16 @@ import numpy as np
 from tqdm import tqdm
 
 from protocol import fk
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import index_entries, mocap_root
-from protocol.motion import load_motion
 from tracker_service.app.evaluate import EvalOptions, evaluate_motion
-from tracker_service.app.tracker_cli import ensure_db
+from tracker_service.app.resources import ensure_db
 from tracker_service.body.family import BODY_MODELS
 from tracker_service.build.database import is_held_out
 from tracker_service.estimators.tree_filter.model import Estimate
-from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState
 from tracker_service.pipeline import body_selection as body_selection
 from tracker_service.pipeline import process as pipeline
+from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState
 from tracker_service.scene.subject import random_subject_spec
 from tracker_service.scene.synthetic import SceneFrame
 

@@ -4,7 +4,7 @@ For chosen frames of a held-out take rendered as synthetic video, writes one PNG
 frame: the camera image (2x) with the true skeleton (green) and the published one (red, its root
 put on the true root), and beside it a side view (depth horizontal, the camera to the right, height
 up) of both, root-relative, with the frame's mean joint error. The side view shows what the camera
-cannot: on session 14's hard takes (bye-tired, byebye-old, guides) the two skeletons coincide in
+cannot: on the hard takes (bye-tired, byebye-old, guides) the two skeletons coincide in
 the image while the true one leans towards the camera and the estimate stands upright.
 
 Usage::
@@ -26,11 +26,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import index_entries, mocap_root
-from protocol.motion import load_motion
 from protocol.skeleton import PARENTS
 from tracker_service.app.evaluate import EvalOptions, evaluate_motion
-from tracker_service.app.tracker_cli import ensure_db
+from tracker_service.app.resources import ensure_db
 from tracker_service.body.family import BODY_MODELS
 from tracker_service.build.database import is_held_out
 from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState

@@ -33,7 +33,7 @@ from protocol.skeleton import (
     default_body,
 )
 
-__all__ = ["Motion", "ground", "is_native", "load_bvh_motion", "load_motion", "resample", "sample_poses"]
+__all__ = ["Motion", "ground", "is_native", "load_bvh_motion", "resample", "sample_poses"]
 
 log = logging.getLogger(__name__)
 
@@ -264,32 +264,3 @@ def _native_motion(bvh: BvhFile, scale: float | None) -> Motion:
         slot = ROT_JOINTS.index(names[k])
         poses[:, 3 + 3 * slot: 6 + 3 * slot] = matrix_to_rotvec(m)
     return Motion(poses=poses, fps=bvh.fps, name=Path(bvh.path).stem, body=body, source=bvh.path)
-
-
-def load_motion(path: str | Path, *, fps: float | None = None, body: Body | None = None) -> Motion:
-    """Read a BVH recording or a gesture script (``.toml``) as a :class:`Motion` on our skeleton.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``*.bvh`` (retargeted onto the shared skeleton) or ``*.toml`` (gesture script).
-    fps : float, optional
-        Resample to this rate (default: the file's own rate; 30 Hz for scripts without one).
-    body : Body, optional
-        Target body (default: :func:`protocol.skeleton.default_body`).
-
-    Raises
-    ------
-    FileNotFoundError, BvhError, ScriptError, ValueError
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"no such motion file: {p}")
-    suffix = p.suffix.lower()
-    if suffix == ".bvh":
-        return load_bvh_motion(p, body=body, fps=fps)
-    if suffix == ".toml":
-        from protocol.formats.gesture_script import load_script
-
-        return load_script(p, fps=fps, body=body)
-    raise ValueError(f"{p}: unknown motion file type {suffix!r} (expected .bvh or .toml)")

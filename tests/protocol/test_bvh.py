@@ -6,8 +6,9 @@ import pytest
 
 from protocol import fk
 from protocol.formats.bvh import BvhError, bvh_fk, read_bvh, write_bvh
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import IndexEntry
-from protocol.motion import is_native, load_motion
+from protocol.motion import is_native
 from protocol.rotations import axis_rotation, rotvec_to_matrix
 
 CHAIN = """HIERARCHY

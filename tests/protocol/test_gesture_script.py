@@ -5,7 +5,7 @@ import pytest
 
 from protocol import fk
 from protocol.formats.gesture_script import ScriptError, load_script, parse_script, script_poses
-from protocol.motion import load_motion
+from protocol.formats.load import load_motion
 from protocol.rotations import euler_to_matrix, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX as J
 from protocol.skeleton import ROT_JOINTS, default_body, standing_pose

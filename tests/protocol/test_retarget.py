@@ -14,9 +14,9 @@ import pytest
 
 from protocol import JOINT_NAMES, fk, fk_global
 from protocol.formats.bvh import read_bvh
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import IndexEntry
 from protocol.formats.retarget import artifact_mask, detect_armature, fit_body, retarget, source_skeleton
-from protocol.motion import load_motion
 from protocol.skeleton import JOINT_INDEX as J
 from protocol.skeleton import default_body, limit_violation_deg
 

@@ -156,8 +156,8 @@ def test_replay_subprocess_delivers_every_frame_in_order(spawn: Callable[[list[s
 
 
 def test_replay_of_a_real_recording(spawn: Callable[[list[str]], Proc]) -> None:
+    from protocol.formats.load import load_motion
     from protocol.formats.mocap_data import mocap_root
-    from protocol.motion import load_motion
 
     try:
         path = mocap_root() / "bandai" / "dataset-2_raise-up-both-hands_normal_001.bvh"

@@ -16,7 +16,6 @@ daemon keeps running. SIGINT/SIGTERM stop it within a frame and everything is un
 
 from __future__ import annotations
 
-import argparse
 import logging
 import threading
 import time
@@ -27,37 +26,23 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from protocol.net.session import config_from_args, open_session, undeclare_quietly
+from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import encode
 from protocol.wire.keys import alive_key, body_key, pose_key, status_key, validate_id
 from protocol.wire.messages import PoseFrame, TrackerState, TrackerStatus, body_info_from_body
+from tracker_service.app.options import RunCommandOptions, RunOptions
 from tracker_service.app.replay_daemon import wait_for_subscriber
 from tracker_service.pipeline.process import FrameResult, TrackerConfig, new_state, process_frame
 from tracker_service.pipeline.warmup import warm_up
 from tracker_service.sources.frame_source import FrameSource
 from tracker_service.templates.database import LoadedDatabase
 
-__all__ = ["RunOptions", "run_tracker"]
+__all__ = ["RunOptions", "run_from_options", "run_tracker"]
 
 log = logging.getLogger(__name__)
 
 _STATE = {"learning": TrackerState.WAITING, "waiting": TrackerState.WAITING,
           "initialising": TrackerState.INITIALISING, "tracking": TrackerState.TRACKING}
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    """Daemon options: id, frame limit, duration, status period, real-time pacing, and whether to
-    warm the pipeline up (:mod:`tracker_service.pipeline.warmup`) before the first real frame."""
-
-    tracker_id: str = "default"
-    max_frames: int | None = None
-    duration: float | None = None
-    status_interval: float = 1.0
-    realtime: bool = True
-    fps_hint: float = 30.0
-    wait_for_subscriber: float = 0.0
-    warm_up: bool = True
 
 
 @dataclass
@@ -90,6 +75,96 @@ def _pose_frame(tid: str, seq: int, ts: float, res: FrameResult, body_name: str)
                      confidence=float(np.clip(res.confidence, 0, 1)), estimator="tree", body_model=body_name)
 
 
+class _Run:
+    """One run of the daemon: the pipeline state, the counters, the body description and the
+    publishers once declared."""
+
+    def __init__(self, tid: str, loaded: LoadedDatabase, config: TrackerConfig, options: RunOptions):
+        self.tid = tid
+        self.loaded = loaded
+        self.config = config
+        self.options = options
+        self.counters = _Counters()
+        self.state = new_state(loaded.body)
+        self.body_bytes = encode(body_info_from_body(self.state.body, tid))
+        self.t_start = time.monotonic()
+        self.seq = 0
+
+    def on_body_query(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(body_key(self.tid), self.body_bytes)
+            self.counters.values["body_queries"] += 1
+        except Exception as exc:  # zenoh thread: never raise
+            log.warning("could not answer body query: %s", exc)
+
+    def status(self, st: TrackerState) -> bytes:
+        c = self.counters
+        return encode(TrackerStatus(
+            tracker_id=self.tid, state=st, ts=time.time(), uptime_s=time.monotonic() - self.t_start, fps=c.fps(),
+            frames=c.values["published"], counters=dict(c.values), stage_ms=c.stage_means(),
+            estimator="tree", body_model=self.state.body.name))
+
+    def step(self, ts: float, frame: Any, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher) -> FrameResult | None:
+        """Process one frame and publish its pose (and the body when it changed); None for a frame
+        the pipeline cannot use (skipped and counted)."""
+        values = self.counters.values
+        values["frames_in"] += 1
+        loaded = self.loaded
+        try:
+            self.state, res = process_frame(self.state, frame, loaded.db, loaded.body, loaded.camera, self.config, ts)
+        except ValueError as exc:  # a frame the pipeline cannot use
+            values["bad_frames"] += 1
+            log.warning("skipping frame %d: %s", values["frames_in"], exc)
+            return None
+        self.counters.add_stages(res.stage_ms)
+        self.counters.times.append(time.monotonic())
+        if res.reinitialised:
+            values["reinitialisations"] += 1
+        if res.body_changed:
+            values["body_changes"] += 1
+            self.body_bytes = encode(body_info_from_body(self.state.body, self.tid))
+            body_pub.put(self.body_bytes)
+        if res.pose is not None:
+            try:
+                pose_pub.put(encode(_pose_frame(self.tid, self.seq, ts, res, self.state.body.name)))
+                values["published"] += 1
+                self.seq += 1
+            except zenoh.ZError as exc:
+                values["publish_errors"] += 1
+                log.warning("publishing failed: %s", exc)
+        return res
+
+    def track(self, source: FrameSource, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher,
+              status_pub: zenoh.Publisher, stop: threading.Event) -> None:
+        """The frame loop: until the source ends, a limit or ``stop``."""
+        options = self.options
+        t_run = time.monotonic()  # --duration counts from here
+        body_pub.put(self.body_bytes)
+        next_status = time.monotonic() + options.status_interval
+        period = 1.0 / options.fps_hint
+        due = time.monotonic()
+        for ts, frame in source:
+            if stop.is_set():
+                break
+            res = self.step(ts, frame, pose_pub, body_pub)
+            if res is None:
+                continue
+            now = time.monotonic()
+            if now >= next_status:
+                status_pub.put(self.status(_STATE[res.phase]))
+                next_status = now + options.status_interval
+            if options.max_frames is not None and self.counters.values["frames_in"] >= options.max_frames:
+                break
+            if options.duration is not None and now - t_run >= options.duration:
+                break
+            if options.realtime:  # a file or synthetic source is played at its frame rate
+                due += period
+                if stop.wait(max(0.0, due - time.monotonic())):
+                    break
+                due = max(due, time.monotonic() - period)
+        self.counters.values["bad_frames"] += int(getattr(source, "counters", {}).get("bad_frames", 0))
+
+
 def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConfig, conf: zenoh.Config,
                 options: RunOptions, stop: threading.Event) -> dict[str, int]:
     """Track frames from ``source`` and publish until the source ends, a limit or ``stop``.
@@ -104,31 +179,14 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
         Final counters.
     """
     tid = validate_id(options.tracker_id)
-    counters = _Counters()
-    state = new_state(loaded.body)
-    body_bytes = [encode(body_info_from_body(state.body, tid))]
-    t_start = time.monotonic()
-
-    def on_body_query(query: zenoh.Query) -> None:
-        try:
-            query.reply(body_key(tid), body_bytes[0])
-            counters.values["body_queries"] += 1
-        except Exception as exc:  # zenoh thread: never raise
-            log.warning("could not answer body query: %s", exc)
-
-    def status(st: TrackerState) -> bytes:
-        return encode(TrackerStatus(
-            tracker_id=tid, state=st, ts=time.time(), uptime_s=time.monotonic() - t_start, fps=counters.fps(),
-            frames=counters.values["published"], counters=dict(counters.values), stage_ms=counters.stage_means(),
-            estimator="tree", body_model=state.body.name))
-
+    run = _Run(tid, loaded, config, options)
     if options.warm_up:  # compile (first run) or load every kernel before the first real frame
         log.info("warming up the pipeline (the first run after an install compiles its kernels)")
         wu = warm_up(loaded.db, loaded.body, loaded.camera, config, should_stop=stop.is_set)
         log.info("warm-up: %d frames in %.1f s (reached %s)", wu.frames, wu.seconds, wu.phase)
         if stop.is_set():  # stopped during start-up: no session was opened
             source.close()
-            return dict(counters.values)
+            return dict(run.counters.values)
     with open_session(conf) as session:
         entities: list[Any] = []
         try:
@@ -136,76 +194,44 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             body_pub = session.declare_publisher(body_key(tid))
             status_pub = session.declare_publisher(status_key(tid))
             entities += [pose_pub, body_pub, status_pub]
-            entities.append(session.declare_queryable(body_key(tid), on_body_query))
+            entities.append(session.declare_queryable(body_key(tid), run.on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
-            status_pub.put(status(TrackerState.STARTING))
+            status_pub.put(run.status(TrackerState.STARTING))
             log.info("publishing poses of tracker %r on %s (database %s, %d templates)", tid, pose_key(tid),
                      loaded.body.name, loaded.db.n_leaves)
             if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
                 log.warning("no subscriber after %.1f s; tracking anyway", options.wait_for_subscriber)
-            t_run = time.monotonic()  # --duration counts from here
-            body_pub.put(body_bytes[0])
-            next_status = time.monotonic() + options.status_interval
-            seq = 0
-            period = 1.0 / options.fps_hint
-            due = time.monotonic()
-            for ts, frame in source:
-                if stop.is_set():
-                    break
-                counters.values["frames_in"] += 1
-                try:
-                    state, res = process_frame(state, frame, loaded.db, loaded.body, loaded.camera, config, ts)
-                except ValueError as exc:  # a frame the pipeline cannot use
-                    counters.values["bad_frames"] += 1
-                    log.warning("skipping frame %d: %s", counters.values["frames_in"], exc)
-                    continue
-                counters.add_stages(res.stage_ms)
-                counters.times.append(time.monotonic())
-                if res.reinitialised:
-                    counters.values["reinitialisations"] += 1
-                if res.body_changed:
-                    counters.values["body_changes"] += 1
-                    body_bytes[0] = encode(body_info_from_body(state.body, tid))
-                    body_pub.put(body_bytes[0])
-                if res.pose is not None:
-                    try:
-                        pose_pub.put(encode(_pose_frame(tid, seq, ts, res, state.body.name)))
-                        counters.values["published"] += 1
-                        seq += 1
-                    except zenoh.ZError as exc:
-                        counters.values["publish_errors"] += 1
-                        log.warning("publishing failed: %s", exc)
-                now = time.monotonic()
-                if now >= next_status:
-                    status_pub.put(status(_STATE[res.phase]))
-                    next_status = now + options.status_interval
-                if options.max_frames is not None and counters.values["frames_in"] >= options.max_frames:
-                    break
-                if options.duration is not None and now - t_run >= options.duration:
-                    break
-                if options.realtime:  # a file or synthetic source is played at its frame rate
-                    due += period
-                    if stop.wait(max(0.0, due - time.monotonic())):
-                        break
-                    due = max(due, time.monotonic() - period)
-            counters.values["bad_frames"] += int(getattr(source, "counters", {}).get("bad_frames", 0))
-            status_pub.put(status(TrackerState.STOPPED))
+            run.track(source, pose_pub, body_pub, status_pub, stop)
+            status_pub.put(run.status(TrackerState.STOPPED))
         finally:
             undeclare_quietly(*reversed(entities))
             source.close()
-    return dict(counters.values)
+    return dict(run.counters.values)
 
 
-def run_tracker_cli(args: argparse.Namespace, loaded: LoadedDatabase, config: TrackerConfig,
-                    source: FrameSource, stop: threading.Event) -> int:
-    """Wire ``mocap-tracker run`` arguments to :func:`run_tracker` (zenoh config; ``stop`` is set by
-    the caller's signal handling)."""
-    conf = config_from_args(args, "publisher")
-    opts = RunOptions(tracker_id=args.id, max_frames=args.frames, duration=args.duration,
-                      realtime=not args.as_fast_as_possible, wait_for_subscriber=args.wait_for_subscriber)
+def run_from_options(options: RunCommandOptions, stop: threading.Event) -> int:
+    """``mocap-tracker run``: open the frame source, load the database and the tracker
+    configuration, and run :func:`run_tracker` until the source ends, a limit or ``stop`` (set by
+    the caller's signal handling). Returns the exit status."""
+    from tracker_service.app.resources import DEFAULT_SCRIPT, ensure_db
+    from tracker_service.app.tracker_config import tracker_config
+    from tracker_service.sources.frame_source import open_source, parse_source
+
+    spec = parse_source(options.source)
+    config = tracker_config(options.tracker)
+    loaded = ensure_db(options.tracker.db)
+    if stop.is_set():
+        return 0
+    source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
+                         seed=options.seed)
+    try:
+        conf = options.zenoh.config()
+    except BaseException:
+        source.close()
+        raise
     if stop.is_set():
         source.close()
         return 0
-    counters = run_tracker(source, loaded, config, conf, opts, stop)
+    counters = run_tracker(source, loaded, config, conf, options.daemon, stop)
     log.info("tracker stopped: %s", counters)
     return 0

@@ -5,10 +5,14 @@ a second or two on a loaded machine, before any command has installed its own ha
 the process as cleanly as one that arrives later: exit status 0, nothing declared yet. This module
 imports only the standard library and turns SIGTERM into ``SystemExit(0)`` from the start. The
 handler stays for the long-running commands (``run``, ``replay``, ``demo``) until they install
-:func:`protocol.net.session.stop_on_signals`; for the others (``build-db``, ``eval``) the command
-line puts SIGTERM's default action back once the arguments are parsed
-(:func:`default_sigterm`), since one killed half-way must not report success. A Ctrl-C while
-importing gives status 130, as it does later before a command has installed its handlers.
+:func:`protocol.net.session.stop_on_signals`; for the others (``build-db``, ``train-appearance``,
+``eval``, ``render``) the command line puts SIGTERM's default action back once the arguments are
+parsed (:func:`default_sigterm`, handed to :func:`tracker_service.app.cli.main`), since one killed
+half-way must not report success. A Ctrl-C while importing gives status 130, as it does later
+before a command has installed its handlers.
+
+The command line is imported inside :func:`main`, after the handler is installed; it does not
+import this module.
 """
 
 from __future__ import annotations
@@ -29,8 +33,8 @@ def single_threaded_blas() -> None:
     """Run numpy's matrix products on one thread unless the user says otherwise (call before numpy
     is imported). The tracker's budget is one core per frame, its products are small (the
     appearance cue's network: 1.9 ms a frame on one thread, 4.4 ms with OpenBLAS's default two
-    threads on this 2-core machine, measured in session 24), and a second BLAS thread only contends
-    with the rest of the pipeline and any other process."""
+    threads on a 2-core machine), and a second BLAS thread only contends with the rest of the
+    pipeline and any other process."""
     import os
 
     for name in _BLAS_THREADS:
@@ -44,7 +48,7 @@ def _stop_during_import(signum: int, _frame: FrameType | None) -> None:
 def default_sigterm() -> None:
     """Give SIGTERM its default action back if this module's start-up handler is still installed
     (called by the command line for the commands that have no clean stop of their own; a no-op
-    when the command line runs in-process, e.g. in tests)."""
+    when the handler is not installed, e.g. when the command line runs in-process in tests)."""
     if signal.getsignal(signal.SIGTERM) is _stop_during_import:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
@@ -72,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C while importing
         print("mocap-tracker: interrupted", file=sys.stderr)
         return 130
-    return cli_main(argv)
+    return cli_main(argv, default_sigterm=default_sigterm)
 
 
 if __name__ == "__main__":

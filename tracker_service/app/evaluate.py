@@ -12,13 +12,14 @@ from __future__ import annotations
 import hashlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from protocol.motion import Motion
+from tracker_service.app.options import EvalOptions
 from tracker_service.body.measured import given_body
 from tracker_service.estimators.tree_filter.filter import initial_state
 from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState, new_state, process_frame
@@ -29,45 +30,6 @@ from tracker_service.templates.database import LoadedDatabase
 __all__ = ["EvalOptions", "acceleration_error", "evaluate_motion", "reacquisition_times", "subject_measurements"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class EvalOptions:
-    """Options of :func:`evaluate_motion`.
-
-    Attributes
-    ----------
-    frames : int, optional
-        Evaluate at most this many motion frames.
-    seed : int
-        Scene seed (subject, room, lighting, noise).
-    empty_prefix : int
-        Empty-room frames for background learning.
-    force_loss_every_s : float
-        Force a tracking loss (the filter is reset to a wrong pose) every this many seconds of
-        tracking (0: never); re-acquisition time is measured after each: the time until three
-        frames in a row are back within 10 cm (or within 1.25 x the median error of the second
-        before the loss, where the track was worse than 10 cm). A loss not yet back in the clip's
-        last second is not judged.
-    fps : float
-        Frame rate of the rendered video.
-    in_place_travel_m : float
-        Motions whose root travels farther than this are played on the spot (a treadmill), so
-        the person stays in view.
-    subject_measurements : tuple of str
-        Give the tracker these of the scene person's own measurements (keys of
-        :func:`subject_measurements`: ``height``, ``group``, girths, ``shoulder``, ``arm``, ``leg``)
-        instead of letting it choose a body model: what a user who enters them gets. Empty: the
-        tracker's own choice.
-    """
-
-    frames: int | None = None
-    seed: int = 0
-    empty_prefix: int = 12
-    force_loss_every_s: float = 0.0
-    fps: float = 30.0
-    in_place_travel_m: float = 2.0
-    subject_measurements: tuple[str, ...] = ()
 
 
 def subject_measurements(spec: SubjectSpec) -> dict[str, Any]:
@@ -158,6 +120,108 @@ def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses
     return out
 
 
+@dataclass
+class _Tally:
+    """What :func:`evaluate_motion` gathers over the frames where the person is in view."""
+
+    present: int = 0
+    tracked: int = 0
+    errs: list[float] = field(default_factory=list)  # root-relative mean joint error of each tracked frame
+    err_t: list[float] = field(default_factory=list)  # their timestamps
+    root_errs: list[float] = field(default_factory=list)
+    errs2d: list[float] = field(default_factory=list)
+    acc_i: list[int] = field(default_factory=list)  # frame number, estimated and true root-relative joints
+    acc_e: list[NDArray[np.float64]] = field(default_factory=list)  # of the steady frames (jitter)
+    acc_t: list[NDArray[np.float64]] = field(default_factory=list)
+    digest: Any = field(default_factory=hashlib.sha256)  # the published pose stream, for regression checks
+    t_pre: list[float] = field(default_factory=list)
+    t_est: list[float] = field(default_factory=list)
+    t_tot: list[float] = field(default_factory=list)
+    init_ms: float = 0.0
+    evals: list[tuple[int, ...]] = field(default_factory=list)
+
+    def add(self, i: int, fr: SceneFrame, res: FrameResult, loaded: LoadedDatabase, was_tracking: bool,
+            in_loss: bool) -> float:
+        """Score tracked frame ``i`` (``was_tracking``: the tracker was tracking before it; ``in_loss``:
+        a forced loss is not yet recovered); returns its root-relative mean joint error."""
+        assert res.joints is not None
+        self.tracked += 1
+        jt, je = fr.truth.joints, res.joints
+        self.digest.update(np.ascontiguousarray(je, dtype=np.float64).tobytes())
+        e = float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean())
+        self.errs.append(e)
+        steady = was_tracking and res.phase == "tracking"  # initialisation (body selection) apart
+        if steady and not in_loss and not res.reinitialised and not res.body_changed:
+            # jitter of steady tracking: no loss, recovery or new skeleton
+            self.acc_i.append(i)
+            self.acc_e.append(je - je[0])
+            self.acc_t.append(jt - jt[0])
+        self.root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
+        self.errs2d.append(float(np.linalg.norm(loaded.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
+        if steady:
+            self.t_pre.append(res.stage_ms.get("preprocess", 0.0) + res.stage_ms.get("background", 0.0))
+            self.t_est.append(res.stage_ms.get("estimate", 0.0))
+            self.t_tot.append(res.stage_ms.get("total", 0.0))
+            self.evals.append(res.evaluations)
+        else:
+            self.init_ms += res.stage_ms.get("total", 0.0)
+        self.err_t.append(fr.timestamp)
+        return e
+
+
+@dataclass
+class _ForcedLosses:
+    """Forces a tracking loss every ``every_s`` seconds of tracking, the next one only once the
+    track is back within 10 cm (three frames in a row); the time it took is measured afterwards by
+    :func:`reacquisition_times`."""
+
+    every_s: float
+    fps: float
+    next_loss: float = 0.0
+    lost_at: float | None = None
+    streak: int = 0
+    track_time: float = 0.0
+    at: list[int] = field(default_factory=list)  # index into the errors of each forced loss
+
+    def __post_init__(self) -> None:
+        self.next_loss = self.every_s
+
+    def after(self, t: float, e: float, index: int, res: FrameResult, state: TrackerState) -> TrackerState:
+        """Follow tracked frame ``index`` (time ``t``, error ``e``); the state, with a loss forced."""
+        if self.lost_at is not None:
+            self.streak = self.streak + 1 if e < 0.10 else 0
+            if self.streak >= 3:
+                self.lost_at = None
+        elif res.phase == "tracking":
+            self.track_time += 1.0 / self.fps
+            if self.every_s > 0 and self.track_time >= self.next_loss:
+                # forced loss: forget the pose, start from the wrong side of the body
+                state = replace(state, filter=initial_state(state.filter.placement))
+                self.lost_at, self.streak = t, 0
+                self.at.append(index)
+                self.next_loss += self.every_s
+        return state
+
+
+def _scene(motion: Motion, loaded: LoadedDatabase, options: EvalOptions) -> SyntheticScene:
+    travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
+    scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=options.fps,
+                       empty_prefix=options.empty_prefix, in_place=bool(travel > options.in_place_travel_m))
+    return SyntheticScene(motion, seed=options.seed, config=scfg)
+
+
+def _eval_config(config: TrackerConfig, options: EvalOptions, scene: SyntheticScene) -> TrackerConfig:
+    """``config`` with the scene's background frames and, if asked, the person's own measurements."""
+    cfg = replace(config, background_frames=options.empty_prefix)
+    if options.subject_measurements:
+        known = subject_measurements(scene.subject.spec)
+        if unknown := set(options.subject_measurements) - set(known):
+            raise ValueError(f"unknown measurement(s) {sorted(unknown)}; choose from {', '.join(known)}")
+        given = {k: known[k] for k in ("height", *options.subject_measurements)}
+        cfg = replace(cfg, body_candidates=(), body=given_body(given))
+    return cfg
+
+
 def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, options: EvalOptions,
                     progress: Callable[[int, int], None] | None = None,
                     observe: Callable[[SceneFrame, TrackerState, FrameResult], None] | None = None) -> dict[str, Any]:
@@ -179,35 +243,13 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
     dict
         The ``mocap-tracker eval`` JSON object.
     """
-    travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
-    scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=options.fps,
-                       empty_prefix=options.empty_prefix, in_place=bool(travel > options.in_place_travel_m))
-    scene = SyntheticScene(motion, seed=options.seed, config=scfg)
+    scene = _scene(motion, loaded, options)
+    tally = _Tally()
+    losses = _ForcedLosses(options.force_loss_every_s, options.fps)
     try:
         n = scene.n_frames if options.frames is None else min(scene.n_frames, options.empty_prefix + options.frames)
-        cfg = replace(config, background_frames=options.empty_prefix)
-        if options.subject_measurements:
-            known = subject_measurements(scene.subject.spec)
-            if unknown := set(options.subject_measurements) - set(known):
-                raise ValueError(f"unknown measurement(s) {sorted(unknown)}; choose from {', '.join(known)}")
-            given = {k: known[k] for k in ("height", *options.subject_measurements)}
-            cfg = replace(cfg, body_candidates=(), body=given_body(given))
+        cfg = _eval_config(config, options, scene)
         state: TrackerState = new_state(loaded.body)
-        errs, root_errs, errs2d, tracked = [], [], [], 0
-        acc_i: list[int] = []  # frame number, estimated and true root-relative joints of steady frames
-        acc_e: list[NDArray[np.float64]] = []
-        acc_t: list[NDArray[np.float64]] = []
-        present = 0
-        digest = hashlib.sha256()  # the published pose stream, for regression checks
-        t_pre, t_est, t_tot = [], [], []
-        init_ms = 0.0
-        evals: list[tuple[int, ...]] = []
-        lost_at: float | None = None
-        err_t: list[float] = []  # timestamps of the evaluated frames (errs)
-        losses: list[int] = []  # index into errs of each forced loss
-        next_loss = options.force_loss_every_s
-        track_time = 0.0
-        streak = 0
         for i in range(n):
             fr = scene.frame(i)
             was_tracking = state.phase == "tracking"  # the frame that ends initialisation scores the bodies
@@ -216,67 +258,42 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
                 observe(fr, state, res)
             if not fr.truth.present:
                 continue
-            present += 1
+            tally.present += 1
             if res.joints is None:
                 continue
-            tracked += 1
-            jt, je = fr.truth.joints, res.joints
-            digest.update(np.ascontiguousarray(je, dtype=np.float64).tobytes())
-            e = float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean())
-            errs.append(e)
-            if (was_tracking and res.phase == "tracking" and lost_at is None and not res.reinitialised
-                    and not res.body_changed):  # jitter of steady tracking: no loss, recovery or new skeleton
-                acc_i.append(i)
-                acc_e.append(je - je[0])
-                acc_t.append(jt - jt[0])
-            root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
-            errs2d.append(float(np.linalg.norm(loaded.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
-            if was_tracking and res.phase == "tracking":  # steady state; initialisation (body selection) apart
-                t_pre.append(res.stage_ms.get("preprocess", 0.0) + res.stage_ms.get("background", 0.0))
-                t_est.append(res.stage_ms.get("estimate", 0.0))
-                t_tot.append(res.stage_ms.get("total", 0.0))
-                evals.append(res.evaluations)
-            else:
-                init_ms += res.stage_ms.get("total", 0.0)
-            t = fr.timestamp
-            err_t.append(t)
-            if lost_at is not None:
-                streak = streak + 1 if e < 0.10 else 0
-                if streak >= 3:  # the next loss waits for the track to be back within 10 cm
-                    lost_at = None  # (the time is measured afterwards by reacquisition_times)
-            elif res.phase == "tracking":
-                track_time += 1.0 / options.fps
-                if options.force_loss_every_s > 0 and track_time >= next_loss:
-                    # forced loss: forget the pose, start from the wrong side of the body
-                    wrong = initial_state(state.filter.placement)
-                    state = replace(state, filter=wrong)
-                    lost_at, streak = t, 0
-                    losses.append(len(errs) - 1)
-                    next_loss += options.force_loss_every_s
+            e = tally.add(i, fr, res, loaded, was_tracking, in_loss=losses.lost_at is not None)
+            state = losses.after(fr.timestamp, e, len(tally.errs) - 1, res, state)
             if progress is not None:
                 progress(i + 1, n)
     finally:
         scene.close()
-    e_arr = np.asarray(errs)
-    reacq = reacquisition_times(np.asarray(err_t), e_arr, losses, options.fps)
-    lvl = np.asarray(evals, dtype=np.float64) if evals else np.zeros((0, 3))
+    return _result(motion, loaded, config, options, tally, losses.at, state, scene)
+
+
+def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, options: EvalOptions, tally: _Tally,
+            losses: list[int], state: TrackerState, scene: SyntheticScene) -> dict[str, Any]:
+    """The ``mocap-tracker eval`` JSON object."""
+    e_arr = np.asarray(tally.errs)
+    reacq = reacquisition_times(np.asarray(tally.err_t), e_arr, losses, options.fps)
+    lvl = np.asarray(tally.evals, dtype=np.float64) if tally.evals else np.zeros((0, 3))
+    t_tot = tally.t_tot
     total_ms = float(np.mean(t_tot)) if t_tot else float("nan")
-    accel = acceleration_error(np.asarray(acc_i, np.int64), np.asarray(acc_e), np.asarray(acc_t))
+    accel = acceleration_error(np.asarray(tally.acc_i, np.int64), np.asarray(tally.acc_e), np.asarray(tally.acc_t))
     return {
         "motion": motion.name,
-        "frames": int(present),
-        "tracked_frames": int(tracked),
+        "frames": int(tally.present),
+        "tracked_frames": int(tally.tracked),
         "mpjpe_cm": round(float(e_arr.mean() * 100), 2) if len(e_arr) else None,
-        "root_error_cm": round(float(np.mean(root_errs) * 100), 2) if root_errs else None,
-        "mpjpe_2d_px": round(float(np.mean(errs2d)), 2) if errs2d else None,
+        "root_error_cm": round(float(np.mean(tally.root_errs) * 100), 2) if tally.root_errs else None,
+        "mpjpe_2d_px": round(float(np.mean(tally.errs2d)), 2) if tally.errs2d else None,
         "frames_within_10cm": round(float(np.mean(e_arr < 0.10)), 3) if len(e_arr) else 0.0,
         "accel_error_cm": round(accel * 100, 3) if np.isfinite(accel) else None,
         "reacquire_s_max": (None if not reacq else (round(max(reacq), 3) if np.isfinite(max(reacq)) else None)),
         "forced_losses": len(reacq),
         "reacquired": int(np.sum(np.isfinite(reacq))),
         "fps": round(1000.0 / total_ms, 1) if t_tot else None,
-        "ms_per_frame": {"preprocess": _stats(t_pre), "estimate": _stats(t_est), "total": _stats(t_tot)},
-        "initialisation_ms": round(init_ms, 1),
+        "ms_per_frame": {"preprocess": _stats(tally.t_pre), "estimate": _stats(tally.t_est), "total": _stats(t_tot)},
+        "initialisation_ms": round(tally.init_ms, 1),
         "steady_frames": len(t_tot),
         "distance_evals_per_level": [round(float(x), 1) for x in lvl.mean(axis=0)] if len(lvl) else [],
         "templates": int(loaded.db.n_leaves),
@@ -289,5 +306,5 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         "database_body": loaded.body.name,
         "subject_height_m": round(float(scene.subject.spec.height), 3),
         "reinitialisations": int(state.reinits),
-        "poses_sha256": digest.hexdigest(),
+        "poses_sha256": tally.digest.hexdigest(),
     }

@@ -21,7 +21,6 @@ with eclipse-zenoh 1.10). A requested shutdown exits with status 0.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import threading
 import time
@@ -31,51 +30,18 @@ from typing import Any
 
 import zenoh
 
-from protocol.motion import Motion, load_motion
-from protocol.net.session import config_from_args, open_session, stop_on_signals, undeclare_quietly
+from protocol.formats.load import load_motion
+from protocol.motion import Motion
+from protocol.net.session import open_session, stop_on_signals, undeclare_quietly
 from protocol.wire.codec import encode
-from protocol.wire.keys import DEFAULT_TRACKER_ID, alive_key, body_key, pose_key, status_key, validate_id
+from protocol.wire.keys import alive_key, body_key, pose_key, status_key, validate_id
 from protocol.wire.messages import TrackerState, TrackerStatus
+from tracker_service.app.options import ReplayCommandOptions, ReplayOptions
 from tracker_service.app.replay import ESTIMATOR, ReplayStream, synthetic_wave_motion
 
-__all__ = ["ReplayOptions", "ReplayResult", "motion_from_args", "publish_motion", "run_replay"]
+__all__ = ["ReplayOptions", "ReplayResult", "load_replay_motion", "publish_motion", "run_replay"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class ReplayOptions:
-    """How to publish a replay.
-
-    Attributes
-    ----------
-    tracker_id : str
-        Id in the key expressions and messages.
-    rate : float, optional
-        Output frames per second (default: the motion's own rate).
-    loop : bool
-        Start again at the end (seq and capture time continue).
-    duration : float, optional
-        Stop after this many seconds of stream time.
-    max_frames : int, optional
-        Stop after this many frames.
-    wait_for_subscriber : float
-        Seconds to wait for a subscriber on the pose key before the first frame (0 = start at
-        once). Lets a test or demo receive every frame from ``seq`` 0.
-    status_interval : float
-        Seconds between ``TrackerStatus`` messages.
-    max_burst : int
-        Frames the publisher may send back to back when it has fallen behind.
-    """
-
-    tracker_id: str = DEFAULT_TRACKER_ID
-    rate: float | None = None
-    loop: bool = False
-    duration: float | None = None
-    max_frames: int | None = None
-    wait_for_subscriber: float = 0.0
-    status_interval: float = 1.0
-    max_burst: int = 3
 
 
 @dataclass
@@ -100,7 +66,7 @@ class ReplayResult:
     counters: dict[str, int] = field(default_factory=dict)
 
 
-def motion_from_args(args: argparse.Namespace) -> Motion:
+def load_replay_motion(options: ReplayCommandOptions) -> Motion:
     """Load the motion chosen by ``--bvh``, ``--script`` or ``--synthetic-wave``.
 
     Raises
@@ -110,14 +76,13 @@ def motion_from_args(args: argparse.Namespace) -> Motion:
     ValueError
         If it cannot be read.
     NotImplementedError
-        While :func:`protocol.motion.load_motion` does not support the format yet.
+        While :func:`protocol.formats.load.load_motion` does not support the format yet.
     """
-    if getattr(args, "synthetic_wave", False):
+    if options.synthetic_wave:
         return synthetic_wave_motion(seconds=4.0, fps=30.0)
-    path_arg = getattr(args, "bvh", None) or getattr(args, "script", None)
-    if not path_arg:
+    if not options.motion:
         raise ValueError("choose a motion with --bvh FILE, --script FILE or --synthetic-wave")
-    path = Path(path_arg)
+    path = Path(options.motion)
     if not path.is_file():
         raise FileNotFoundError(f"motion file not found: {path}")
     return load_motion(path)
@@ -294,31 +259,17 @@ def _run_frames(
     result.elapsed_s = time.monotonic() - start
 
 
-def run_replay(args: argparse.Namespace) -> int:
-    """Entry point of ``mocap-tracker replay``: load the motion, publish it, return an exit code.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        From :func:`tracker_service.app.cli.build_parser` (source, ``rate``, ``loop``, ``duration``,
-        ``frames``, ``id``, ``wait_for_subscriber`` and the zenoh options).
+def run_replay(options: ReplayCommandOptions) -> int:
+    """``mocap-tracker replay``: load the motion, publish it, return an exit code.
 
     Returns
     -------
     int
         0 when the replay ended normally or was stopped by SIGINT/SIGTERM.
     """
-    options = ReplayOptions(
-        tracker_id=args.id,
-        rate=args.rate,
-        loop=args.loop,
-        duration=args.duration,
-        max_frames=args.frames,
-        wait_for_subscriber=args.wait_for_subscriber,
-    )
     with stop_on_signals(threading.Event()) as stop:  # first, so an early Ctrl-C is clean too
-        motion = motion_from_args(args)
-        conf = config_from_args(args, role="publisher")
+        motion = load_replay_motion(options)
+        conf = options.zenoh.config()
         if not stop.is_set():
-            publish_motion(motion, conf, options, stop)
+            publish_motion(motion, conf, options.publish, stop)
     return 0

@@ -6,10 +6,11 @@ build the body itself (:func:`~tracker_service.body.family.build_body`, the fami
 and radii), so a user who gives their height and their arm and leg proportions gets exactly that
 skeleton in the published joints and templates scaled to exactly that height; measurements left
 out are taken from the nearest family model. Over the 51 held-out takes, the leg proportion is
-what the automatic selection cannot supply (``docs/TRACKER.md``, session 14): for a 1.84 m man
-with legs 4.5 % longer than the family's, his height alone takes MPJPE from 9.32 to 9.30 cm and
-all his measurements to 8.43 cm, nearly all of it the ``leg`` ratio (the ankles and toes sit
-where the leg length puts them below the pelvis, and a silhouette in trousers does not show it).
+what the automatic selection cannot supply (``docs/TRACKER.md``, "What the hard takes look
+like"): for a 1.84 m man with legs 4.5 % longer than the family's, his height alone takes MPJPE
+from 9.32 to 9.30 cm and all his measurements to 8.43 cm, nearly all of it the ``leg`` ratio (the
+ankles and toes sit where the leg length puts them below the pelvis, and a silhouette in trousers
+does not show it).
 
 The text form, for the command line (``--measurements``), is comma-separated ``key=value`` pairs:
 

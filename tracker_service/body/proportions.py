@@ -5,7 +5,7 @@ stature and silhouette fit; within a model the proportions are fixed, so a subje
 torso or longer legs than the chosen model is published with the model's. The tracker's error
 shows it: for the benchmark's third subject (seed 11) the chosen model's torso is 5 % too long and
 its legs 7 % too short, and the published neck and head sit 3 cm off in height on every frame
-(docs/TRACKER.md, session 25).
+(docs/TRACKER.md, "Refining the published pose toward the network's joints").
 
 The appearance network reads every joint relative to the pelvis (:mod:`tracker_service.cues.appearance`),
 so each frame gives a reading of every bone's length. Over the first frames of tracking their

@@ -5,7 +5,7 @@ images. Each sphere image is taken as a circle of radius ``f R L / (z sqrt(L^2 -
 ellipse's minor semi-axis: exact on the optical axis; the radial elongation ``1 / cos(theta)``
 off-axis is ignored), so a capsule becomes the hull of two circles. Every image row meets the hull
 in one interval -- from the two circles and the two outer tangent segments -- which the numba
-scanline kernels of :mod:`tracker_service._kernels` fill directly (no polygons, only the rows the
+scanline kernels of :mod:`tracker_service.body._kernels` fill directly (no polygons, only the rows the
 capsule covers). The same intervals, merged per row, are the run-length contours ``(y, x_start,
 x_end)`` of the template database (Okada & Stenger Fig. 5, eq. 12) -- :func:`silhouette_runs`.
 

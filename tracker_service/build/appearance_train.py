@@ -41,9 +41,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
-
-from tracker_service.cues.appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
 from tracker_service.build.posture_variation import POSTURE_VERSION, PostureParams, vary_posture
+from tracker_service.cues.appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
 
 __all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "SCRIPT_ROW_BASE", "Samples", "TrainConfig", "config_samples",
            "export_layers", "member_posture_passes", "render_samples", "render_take", "train_network",
@@ -157,7 +156,6 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
         ``take`` left empty (the caller knows it).
     """
     from protocol.formats.load import load_motion
-
     from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
 
     motion = load_motion(path, fps=30.0)

@@ -20,22 +20,22 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from protocol.kinematics import fk
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import IndexEntry, index_entries, mocap_root
-from protocol.motion import Motion, load_motion
+from protocol.kinematics import fk
+from protocol.motion import Motion
 from protocol.rotations import matrix_to_quat, matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX, N_PARTS, PARTS, POSE_SIZE, ROT_JOINTS, Body
-
-from tracker_service.cues.appearance import camera_joints
+from tracker_service.body.raster import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
 from tracker_service.camera import Camera, default_camera
+from tracker_service.cues.appearance import camera_joints
+from tracker_service.cues.skin import leaf_joint_points
+from tracker_service.estimators.tree_filter.filter import FilterDB
+from tracker_service.silhouette.distance import RunSet
 from tracker_service.silhouette.features import LEVEL_SIZES
 from tracker_service.silhouette.placement import placement_columns, placement_rows
 from tracker_service.templates.pruning import prune_poses
-from tracker_service.silhouette.distance import RunSet
-from tracker_service.body.raster import render_labels_with_areas, render_silhouettes, silhouette_runs_batch
-from tracker_service.cues.skin import leaf_joint_points
 from tracker_service.templates.tree import PackedMaskDistance, build_tree, pack_masks
-from tracker_service.estimators.tree_filter.filter import FilterDB
 
 __all__ = ["DbBuildConfig", "build_filter_db", "heading_of", "is_held_out", "set_heading", "training_motions"]
 

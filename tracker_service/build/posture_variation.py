@@ -1,8 +1,8 @@
 """Posture variation of the appearance network's training poses: a stoop and bent knees.
 
 The tracker's worst held-out takes are postures the training recordings hold few of: the stooped
-``bye_tired`` (trunk 20 degrees forward, knees bent; within 10 cm on 0.04-0.18 of its frames in
-session 26), the punch's deep lunge, the old and tired styles. The network reads them as a
+``bye_tired`` (trunk 20 degrees forward, knees bent; within 10 cm on 0.04-0.18 of its frames
+without posture variation), the punch's deep lunge, the old and tired styles. The network reads them as a
 straighter person (the trunk 8 degrees too upright, the feet 12-15 cm off in depth), and the
 refinement follows it. Varying the recordings' own poses shows the network more of those postures
 without new recordings:

@@ -2,11 +2,11 @@
 
 The silhouette does not say which leg is forward, how far a hand is in front of the chest or how
 much the torso leans towards the camera, and on such frames the filter's support holds the right
-leaf but ranks a depth-ambiguous one above it (docs/TRACKER.md, session 9). Inside the silhouette
-the image does carry it: shading, which limb hides which, the stripes of a shirt cut by an arm in
-front of it. This module reads that with a small convolutional network trained on rendered views
-of the training recordings (:mod:`tracker_service.build.appearance_train`; the Kinect body-part
-classifier was trained on synthetic renders of motion capture the same way):
+leaf but ranks a depth-ambiguous one above it (docs/TRACKER.md, "where the remaining error is").
+Inside the silhouette the image does carry it: shading, which limb hides which, the stripes of a
+shirt cut by an arm in front of it. This module reads that with a small convolutional network
+trained on rendered views of the training recordings (:mod:`tracker_service.build.appearance_train`;
+the Kinect body-part classifier was trained on synthetic renders of motion capture the same way):
 
 1. :func:`person_crop` cuts a square around the observed silhouette and scales it to the
    network's input (``S x S``): colour times the mask, and the mask itself, so that the room
@@ -20,7 +20,7 @@ classifier was trained on synthetic renders of motion capture the same way):
    (:func:`camera_joints` of the leaves' joints, computed once when the database is loaded).
 
 The cost joins the filter's leaf likelihood with a weight (``FilterParams.appearance_weight``);
-measured in docs/TRACKER.md (session 24).
+measured in docs/TRACKER.md ("An appearance cue").
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ class AppearanceNet:
     layers: tuple[Layer, ...]
     meta: dict[str, Any]
     #: Further networks of the same input and output, trained on other views with other initial
-    #: weights: an ensemble whose readings :func:`predict_joints` pools (session 26).
+    #: weights: an ensemble whose readings :func:`predict_joints` pools.
     members: tuple[tuple[Layer, ...], ...] = ()
 
     @property

@@ -1,12 +1,13 @@
-"""A Kalman filter of the appearance network's joint readings over time (session 26).
+"""A Kalman filter of the appearance network's joint readings over time.
 
 The network reads every joint from one frame (:func:`tracker_service.cues.appearance.predict_joints`),
 so its reading trembles from frame to frame by a few centimetres even where its mean is right
-(docs/TRACKER.md, session 26: the raw readings' acceleration error is 3.4 cm per frame², as large
-as an unsmoothed published pose's). Before the published pose is refined toward them
-(:mod:`tracker_service.pipeline.refinement`), each coordinate of each joint is filtered by a
-constant-velocity Kalman filter whose measurement variance is the network's own: a confident
-reading moves the estimate at once, an unsure one is averaged with its predecessors. A constant
+(docs/TRACKER.md, "Two networks, their readings filtered over time": the raw readings'
+acceleration error is 3.4 cm per frame², as large as an unsmoothed published pose's). Before the
+published pose is refined toward them (:mod:`tracker_service.pipeline.refinement`), each
+coordinate of each joint is filtered by a constant-velocity Kalman filter whose measurement
+variance is the network's own: a confident reading moves the estimate at once, an unsure one is
+averaged with its predecessors. A constant
 velocity is followed without lag, unlike a low-pass filter; the process noise (white acceleration,
 ``ReadingFilterParams.accel``) sets how fast a joint may change speed.
 
@@ -36,7 +37,7 @@ class ReadingFilterParams:
         per second squared. 20 heights/s² is 36 m/s² for a 1.8 m person: a hand may reverse a
         1 m/s swing in a few frames. This is a light filter: for a reading spread of 2-5 % of the
         height its settled gain is ~0.6-0.8 (a memory of one or two frames), which cuts the
-        frame-to-frame tremble by ~40 % (docs/TRACKER.md, session 26, measured the choice).
+        frame-to-frame tremble by ~40 % (measured in docs/TRACKER.md).
     max_gap_s : float
         A longer gap between readings restarts the filter at the new reading.
     """

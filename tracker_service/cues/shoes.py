@@ -20,7 +20,7 @@ published pose's legs are the support's posterior mean re-weighted by ``exp(-wei
 (:func:`reweight_legs`).
 When the shoes' colour is too close to the legs' (e.g. black shoes under black trousers) the cue
 is off for that person (:func:`learn_shoes` returns None). Measured in ``docs/TRACKER.md``
-(sessions 13-14).
+("Shoes, given measurements, warm-up").
 """
 
 from __future__ import annotations

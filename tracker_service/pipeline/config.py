@@ -90,6 +90,15 @@ class TrackerConfig:
         per-frame estimate.
     fps : float
         Frame rate assumed when :func:`process_frame` is given no time stamp.
+    min_confidence : float
+        Poses whose confidence (the silhouette match, ``exp(-d^2 / 2c^2)``) is below this are
+        withheld: no pose rather than a pose without grounds (0: publish every estimate).
+    relearn_after : int
+        After this many consecutive withheld frames the background is learned again, robustly
+        (:func:`tracker_service.silhouette.background.learn_background_robust`): a person in view
+        when the tracker started was learned into the background (0: never).
+    relearn_frames, relearn_every : int
+        The robust learning takes every ``relearn_every``-th frame until it has ``relearn_frames``.
     """
 
     distance: Distance = "nwxor"
@@ -115,6 +124,10 @@ class TrackerConfig:
     reading_filter: ReadingFilterParams | None = field(default_factory=ReadingFilterParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
+    min_confidence: float = 0.0
+    relearn_after: int = 0
+    relearn_frames: int = 21
+    relearn_every: int = 4
 
     def __post_init__(self) -> None:
         if self.body is not None and self.body_candidates:

@@ -41,7 +41,7 @@ class FrameEvidence:
         The placement measured for the templates' own body size (body selection measures with it).
     feet_seen : bool
         The feet are in the image (the shoe cue looks for shoes only then).
-    shoe_pixels : object or None
+    shoe_pixels : tuple of two (N,) int64 arrays, or None
         The frame's shoe pixels (:func:`tracker_service.cues.shoes.shoe_pixels`), when looked for.
     reading : tuple of (J, 3) float64 arrays or None
         The appearance network's reading ``(mu, var)`` of the joints, when taken.
@@ -52,7 +52,7 @@ class FrameEvidence:
     observation: Observation
     raw_placement: NDArray[np.float64] | None
     feet_seen: bool
-    shoe_pixels: object | None
+    shoe_pixels: tuple[NDArray[np.int64], NDArray[np.int64]] | None
     reading: tuple[NDArray[np.float64], NDArray[np.float64]] | None
     preprocess_ms: float
     appearance_ms: float

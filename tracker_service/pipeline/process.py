@@ -36,7 +36,13 @@ from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.observe import FrameEvidence, observe
 from tracker_service.pipeline.publish import Transition, publish
 from tracker_service.pipeline.smoothing import SmoothState
-from tracker_service.silhouette.background import BackgroundModel, learn_background, subtract, update_background
+from tracker_service.silhouette.background import (
+    BackgroundModel,
+    learn_background,
+    learn_background_robust,
+    subtract,
+    update_background,
+)
 from tracker_service.silhouette.features import preprocess
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
@@ -68,6 +74,9 @@ class TrackerState:
     proportions_set: bool = False
     base_body: Body | None = None  # the model before the proportions were read (proportions.py)
     reading: ReadingState | None = None  # the network's readings filtered over time (reading_filter.py)
+    withheld: int = 0  # consecutive frames whose pose was withheld (TrackerConfig.min_confidence)
+    relearning: bool = False  # learning the background again, robustly (a person was in it)
+    relearns: int = 0
 
 
 @dataclass(frozen=True)
@@ -91,6 +100,9 @@ class FrameResult:
     reinitialised : bool
     body_changed : bool
         The body model was (re)chosen in this frame.
+    rejected : str or None
+        Why this frame's pose was withheld (``pose`` and ``joints`` are None): the estimate put the
+        person where no person can be seen from this camera (:func:`implausible`).
     """
 
     phase: Phase
@@ -104,6 +116,7 @@ class FrameResult:
     stage_ms: dict[str, float]
     reinitialised: bool = False
     body_changed: bool = False
+    rejected: str | None = None
 
 
 def new_state(body: Body, background: BackgroundModel | None = None) -> TrackerState:
@@ -112,17 +125,69 @@ def new_state(body: Body, background: BackgroundModel | None = None) -> TrackerS
                         learning=(), filter=initial_state(), body=body, body_scale=1.0, body_scores={})
 
 
+#: Where a tracked person can be: the pelvis's depth in front of the camera and its height over the floor
+#: (metres). Outside, the silhouette is not a person standing in the room (a background learned with the
+#: person in it, a camera that moved) and the pose is withheld.
+PLAUSIBLE_DEPTH_M = (0.5, 12.0)
+PLAUSIBLE_PELVIS_HEIGHT_M = (-0.5, 2.5)
+
+
+def implausible(joints: NDArray[np.float64], camera: Camera) -> str | None:
+    """Why a pose cannot be a person in front of ``camera`` (None when it can).
+
+    Parameters
+    ----------
+    joints : (J, 3) float64
+        World joints, the pelvis first.
+    camera : Camera
+
+    Returns
+    -------
+    str or None
+        ``'non-finite'``, ``'depth'`` (the pelvis closer than 0.5 m or further than 12 m) or
+        ``'height'`` (the pelvis below the floor or above 2.5 m).
+    """
+    if not np.isfinite(joints).all():
+        return "non-finite"
+    depth = float(camera.depth(joints[:1])[0])
+    if not PLAUSIBLE_DEPTH_M[0] <= depth <= PLAUSIBLE_DEPTH_M[1]:
+        return "depth"
+    if not PLAUSIBLE_PELVIS_HEIGHT_M[0] <= float(joints[0, 1]) <= PLAUSIBLE_PELVIS_HEIGHT_M[1]:
+        return "height"
+    return None
+
+
 def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
     xs = np.nonzero(mask)[1]
     return bool(len(xs)) and abs(float(xs.mean()) - mask.shape[1] / 2) <= radius * mask.shape[1]
 
 
 def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig) -> TrackerState:
-    """The learning phase: collect empty-room frames, then learn the background (§2.2)."""
+    """The learning phase: collect empty-room frames, then learn the background (§2.2). When
+    re-learning (a person was learned into the background), every ``relearn_every``-th frame over a
+    few seconds, learned robustly (per-pixel medians: the room behind a moving person)."""
+    if state.relearning:
+        n = state.frames_in_phase + 1
+        frames = (*state.learning, frame) if n % config.relearn_every == 1 else state.learning
+        if len(frames) >= max(config.relearn_frames, 3):
+            return replace(state, phase="waiting", background=learn_background_robust(np.stack(frames)), learning=(),
+                           relearning=False, frames_in_phase=0)
+        return replace(state, learning=frames, frames_in_phase=n)
     frames = (*state.learning, frame)
     if len(frames) >= max(config.background_frames, 2):
         return replace(state, phase="waiting", background=learn_background(np.stack(frames)), learning=())
     return replace(state, learning=frames)
+
+
+def _withhold(state: TrackerState, config: TrackerConfig, why: str) -> TrackerState:
+    """Count a withheld pose; after ``config.relearn_after`` in a row, learn the background again."""
+    withheld = state.withheld + 1
+    if config.relearn_after <= 0 or withheld < config.relearn_after:
+        return replace(state, withheld=withheld)
+    log.warning("no pose the silhouette supports for %d frames (%s): learning the background again; "
+                "step aside or move a little so that the camera sees the room behind you", withheld, why)
+    return replace(state, phase="learning", background=None, learning=(), relearning=True, frames_in_phase=0,
+                   withheld=0, relearns=state.relearns + 1, filter=initial_state(), reading=None, smooth=None)
 
 
 def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_], ev: FrameEvidence,
@@ -255,5 +320,13 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     t4 = time.perf_counter()
     ms |= {"preprocess": ev.preprocess_ms, "estimate": (t4 - t1) * 1e3 - ev.preprocess_ms,
            "filter": (t3 - t2) * 1e3 + (t2 - t1) * 1e3 - ev.preprocess_ms, "total": (t4 - t0) * 1e3}
+    why = implausible(joints, camera)  # never a pose without grounds
+    if why is None and est.confidence < config.min_confidence:
+        why = "low-confidence"
+    if why is not None:
+        nxt = _withhold(nxt, config, why)
+        return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
+                                est.reinitialised, move.body_changed, why)
+    nxt = replace(nxt, withheld=0)
     return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
                             est.evaluations, ms, est.reinitialised, move.body_changed)

@@ -57,8 +57,8 @@ class RefineParams:
     pose_sd : (3,) tuple of float
         Standard deviation (metres) of the filter's joint positions along the camera's x (right),
         y (up) and z (towards the camera) axes: the filter pose's weight against the network's
-        variance. Depth is the silhouette's weak axis, hence the larger value. Session 25 chose
-        8 / 8 / 16 cm (5-20 cm measured flat); with session 26's ensemble of two networks and its
+        variance. Depth is the silhouette's weak axis, hence the larger value. With one network,
+        8 / 8 / 16 cm (5-20 cm measured flat); with the ensemble of two networks and its
         readings Kalman-filtered, 12 / 12 / 24 cm leans more on the reading: frames within 10 cm
         0.943 -> 0.950 on 17 held-out takes of the tall subject (seed 11), unchanged on seed 7.
     turn_prior : float

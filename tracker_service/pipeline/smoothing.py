@@ -36,15 +36,13 @@ class OneEuroParams:
     min_cutoff_rot, beta_rot : float
         Minimum cut-off (Hz) and speed coefficient (Hz per rad/s) of the joint rotations.
     min_cutoff_root, beta_root : float
-        The same for the root (whole-body) orientation. Until session 25 it was smoothed harder
-        (1.0 Hz, 0.2) than the joints (1.5 Hz, 0.5), as leaf-to-leaf heading jitter was the
-        largest; once the published pose was refined toward the appearance network's joints, that
-        lag cost more than the jitter it removed. Session 26's defaults (5 Hz, 1.5 for both), with
-        the network's readings Kalman-filtered before the refinement
-        (:mod:`tracker_service.cues.reading_filter`) and an ensemble of two networks, keep the published
-        pose's acceleration error where session 25 had it (1.29 vs 1.28 cm per frame² on 17
+        The same for the root (whole-body) orientation. A harder root smoothing (1.0 Hz, 0.2)
+        lagged more than the jitter it removed once the published pose is refined toward the
+        appearance network's joints. These defaults (5 Hz, 1.5 for both), with the network's
+        readings Kalman-filtered before the refinement (:mod:`tracker_service.cues.reading_filter`),
+        keep the published pose's acceleration error as it was (1.29 vs 1.28 cm per frame² on 17
         held-out takes of seed 11, 1.22 vs 1.24 on seed 7) and lower its error by 0.4-0.5 cm
-        (docs/TRACKER.md, session 26).
+        (docs/TRACKER.md).
     d_cutoff : float
         Cut-off (Hz) of the speed estimate.
     max_gap_s : float

@@ -2,7 +2,7 @@
 
 Every hot loop of the tracker is a numba kernel compiled on first call and cached on disk
 (``@njit(cache=True)``). On a fresh install the first call of each compiles it, which stalls the
-first real frames for tens of seconds (measured in ``docs/TRACKER.md``, session 13); later starts
+first real frames for tens of seconds (measured in ``docs/TRACKER.md``); later starts
 load the cache in a fraction of a second. :func:`warm_up` drives :func:`~tracker_service.pipeline.process.
 process_frame` through every phase (learning, waiting, initialising with the body selection,
 tracking) on a clip made of an empty room and the database body standing at the reference spot (its most neutral leaf),

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from protocol.skeleton import JOINT_INDEX, N_PARTS
 from tracker_service.camera import Camera
+from tracker_service.scene import textures as tx
 from tracker_service.scene.gl import (
     close_renderer,
     deterministic_renderer,
@@ -34,7 +35,6 @@ from tracker_service.scene.room import (
     shadow_strength_map,
 )
 from tracker_service.scene.subject import MATERIALS, ClothedSubject
-from tracker_service.scene import textures as tx
 
 __all__ = ["SHADOW_FLOOR", "SHADOW_WALL", "SceneRenderer"]
 

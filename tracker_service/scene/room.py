@@ -19,9 +19,9 @@ import pyrender
 from numpy.typing import ArrayLike, NDArray
 
 from tracker_service.camera import Camera, look_at
+from tracker_service.scene import textures as tx
 from tracker_service.scene.geometry import Surface, box_surface, ring_surface, tube_rings
 from tracker_service.scene.gl import gl_camera, label_colours, labels_from_seg, primitive, textured_material
-from tracker_service.scene import textures as tx
 
 __all__ = ["BACK_WALL", "FLOOR", "Lighting", "Room", "build_room", "planar_shadow", "random_lighting",
            "render_background", "shadow_strength_map"]

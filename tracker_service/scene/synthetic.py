@@ -2,7 +2,7 @@
 pose is known.
 
 A :class:`SyntheticScene` plays a motion (BVH recording or gesture script, read by
-:func:`protocol.motion.load_motion`) on a randomly proportioned, clothed person
+:func:`protocol.formats.load.load_motion`) on a randomly proportioned, clothed person
 (:mod:`tracker_service.scene.subject`) standing in a furnished room (:mod:`tracker_service.scene.room`)
 seen by the paper's camera (:func:`tracker_service.camera.default_camera`), and yields
 ``(timestamp, frame, truth)``: a BGR uint8 image and its :class:`GroundTruth` (pose vector, 3D and
@@ -28,7 +28,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.motion import Motion, ground, load_motion, resample
+from protocol.formats.load import load_motion
+from protocol.motion import Motion, ground, resample
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import N_JOINTS, N_PARTS, POSE_SIZE
 from tracker_service.body.raster import render_labels_with_areas

@@ -127,6 +127,41 @@ def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
     )
 
 
+def learn_background_robust(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
+                            bright_std_floor: float = 2.0) -> BackgroundModel:
+    """Learn the model from frames that may show a moving person (no empty room needed).
+
+    Each pixel's chromaticity and brightness are the medians over the frames, and their spread the
+    scaled median absolute deviation (1.4826 MAD), so that a person covering a pixel in fewer than
+    half of the frames does not enter the model: the room behind them is learned as they move.
+
+    Parameters
+    ----------
+    frames : (N, H, W, 3) uint8
+        BGR frames spread over a few seconds (N >= 3).
+    chroma_std_floor, bright_std_floor : float
+        Lower bounds of the standard deviations.
+
+    Returns
+    -------
+    BackgroundModel
+    """
+    f = np.asarray(frames)
+    if f.ndim != 4 or f.shape[-1] != 3 or f.shape[0] < 3:
+        raise ValueError(f"need (N >= 3, H, W, 3) frames, got {f.shape}")
+    c, b = _chroma_bright(f)
+    c_med, b_med = np.median(c, axis=0), np.median(b, axis=0)
+    c_std = np.maximum(1.4826 * np.median(np.abs(c - c_med), axis=0), chroma_std_floor)
+    b_std = np.maximum(1.4826 * np.median(np.abs(b - b_med), axis=0), bright_std_floor)
+    return BackgroundModel(
+        chroma_mean=c_med.astype(np.float32),
+        chroma_inv_var=(1.0 / c_std**2).astype(np.float32),
+        bright_mean=b_med.astype(np.float32),
+        bright_std=b_std.astype(np.float32),
+        n_frames=int(f.shape[0]),
+    )
+
+
 def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
                    params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
     """Per-pixel classification before clean-up (numba kernel; reference :func:`raw_foreground_reference`).

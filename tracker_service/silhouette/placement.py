@@ -97,7 +97,8 @@ def template_columns_reference(runs: RunSet, level_scale: float, shape: tuple[in
 
 def placement_columns(level_runs: tuple[RunSet, ...], level_scale: tuple[float, ...], camera: Camera
                       ) -> tuple[tuple[NDArray[np.float64], ...], float]:
-    """The ``level_column`` and ``ref_column`` fields of a :class:`~tracker_service.estimators.tree_filter.filter.FilterDB`.
+    """The ``level_column`` and ``ref_column`` fields of a
+    :class:`~tracker_service.estimators.tree_filter.filter.FilterDB`.
 
     Parameters
     ----------

@@ -41,7 +41,8 @@ class DatabaseError(RuntimeError):
 
 
 def default_db_dir(body: str = "mMA") -> Path:
-    """``out/db/<body>`` (:func:`tracker_service.paths.out_dir`): where ``build-db`` writes and ``run``/``eval`` look by default."""
+    """``out/db/<body>`` (:func:`tracker_service.paths.out_dir`): where ``build-db`` writes and
+    ``run``/``eval`` look by default."""
     return out_dir() / "db" / body
 
 

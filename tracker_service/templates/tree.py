@@ -35,7 +35,8 @@ from numpy.typing import NDArray
 
 from tracker_service.templates._kernels import hamming_to_many
 
-__all__ = ["LevelDistance", "PackedMaskDistance", "TemplateTree", "build_tree", "cluster_node", "pack_masks"]
+__all__ = ["LevelDistance", "PackedMaskDistance", "TemplateTree", "build_tree", "cluster_node",
+           "hamming_to_many_reference", "pack_masks"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,13 @@ def pack_masks(masks: NDArray[np.bool_]) -> NDArray[np.uint64]:
     return np.ascontiguousarray(flat).view(np.uint64)
 
 
+def hamming_to_many_reference(packed: NDArray[np.uint64], proto: int, members: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Plain-numpy reference of :func:`tracker_service.templates._kernels.hamming_to_many`: the number of
+    differing bits between packed mask ``proto`` and each of ``members``, ``(n,) int64``."""
+    diff = np.bitwise_xor(packed[np.asarray(members, np.int64)], packed[int(proto)])
+    return np.unpackbits(diff.view(np.uint8), axis=1).sum(axis=1, dtype=np.int64)
+
+
 class PackedMaskDistance:
     """XOR distance (eq. 7 without the window: fraction of differing pixels) on packed masks.
 
@@ -83,6 +91,7 @@ class PackedMaskDistance:
         self.n_pixels = int(n_pixels)
 
     def distances(self, proto: int, members: NDArray[np.int64]) -> NDArray[np.float64]:
+        # numba kernel; reference: hamming_to_many_reference
         counts = hamming_to_many(self.packed, int(proto), np.ascontiguousarray(members, np.int64))
         return counts.astype(np.float64) / self.n_pixels
 

@@ -2,17 +2,22 @@
 options; `train-appearance`."""
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from tracker_service.app.tracker_cli import _gesture_scripts
+from tracker_service.app.commands.train_appearance import parse_passes
+from tracker_service.app.options import TrackerOptions
+from tracker_service.app.resources import gesture_scripts
+from tracker_service.app.tracker_config import subject_keys, tracker_config
 
 REPO = Path(__file__).resolve().parents[3]
 
 
 def test_game_scripts_folder_skips_the_label_file(capsys: pytest.CaptureFixture[str]) -> None:
-    files = _gesture_scripts([str(REPO / "game_client" / "scripts")])
+    files = gesture_scripts([str(REPO / "game_client" / "scripts")])
     names = {p.name for p in files}
     assert {"strike.toml", "fire_ring.toml", "transform.toml", "crouch.toml"} <= names
     assert "labels.toml" not in names
@@ -23,76 +28,68 @@ def test_broken_toml_is_kept_for_the_reader_to_report(tmp_path: Path) -> None:
     (tmp_path / "bad.toml").write_text("[[key]\nt = ")
     (tmp_path / "ok.toml").write_text("[[key]]\nt = 0.0\n")
     (tmp_path / "other.toml").write_text("title = 'not a script'\n")
-    assert [p.name for p in _gesture_scripts([str(tmp_path)])] == ["bad.toml", "ok.toml"]
+    assert [p.name for p in gesture_scripts([str(tmp_path)])] == ["bad.toml", "ok.toml"]
 
 
-def ns(**kw: object) -> argparse.Namespace:
+def opts(**kw: Any) -> TrackerOptions:
     """The tracker options of ``run`` / ``eval`` with their defaults, overridden by ``kw`` (no
     appearance network unless given: the tests do not depend on a trained one)."""
-    base = {"body": "auto", "distance": "xor", "no_occlusion": False, "max_heading": None, "no_skin": False,
-            "no_smoothing": False, "pose": "mean", "measurements": None, "no_shoes": False, "appearance": "off",
-            "no_refine": False, "no_proportions": False, "no_reading_filter": False}
-    return argparse.Namespace(**(base | kw))
+    return replace(TrackerOptions(appearance="off"), **kw)
 
 
 def test_tracker_options_build_the_config() -> None:
     import math
 
-    from tracker_service.app.tracker_cli import _config
-
-    cfg = _config(ns())
+    cfg = tracker_config(opts())
     assert cfg.filter.max_heading is None and cfg.skin is not None and cfg.smoothing is not None
     assert cfg.use_mean_pose and cfg.filter.mean_temperature > 1.0
-    assert not _config(ns(pose="map")).use_mean_pose
-    cfg = _config(ns(max_heading=35.0, no_skin=True, no_smoothing=True, body="wTY"))
+    assert not tracker_config(opts(pose="map")).use_mean_pose
+    cfg = tracker_config(opts(max_heading_deg=35.0, skin=False, smoothing=False, body="wTY"))
     assert cfg.filter.max_heading == pytest.approx(math.radians(35.0))
     assert cfg.skin is None and cfg.smoothing is None and cfg.body_candidates == ("wTY",)
-    assert cfg.shoes is not None and _config(ns(no_shoes=True)).shoes is None
-    assert cfg.refine is not None and _config(ns(no_refine=True)).refine is None
-    assert cfg.proportions is not None and _config(ns(no_proportions=True)).proportions is None
-    assert cfg.reading_filter is not None and _config(ns(no_reading_filter=True)).reading_filter is None
-    for bad in ({"max_heading": 0.0}, {"max_heading": 400.0}, {"body": "nobody"}):
+    assert cfg.shoes is not None and tracker_config(opts(shoes=False)).shoes is None
+    assert cfg.refine is not None and tracker_config(opts(refine=False)).refine is None
+    assert cfg.proportions is not None and tracker_config(opts(proportions=False)).proportions is None
+    assert cfg.reading_filter is not None and tracker_config(opts(reading_filter=False)).reading_filter is None
+    for bad in ({"max_heading_deg": 0.0}, {"max_heading_deg": 400.0}, {"body": "nobody"}):
         with pytest.raises(ValueError):
-            _config(ns(**bad))
+            tracker_config(opts(**bad))
     # the user's measurements build the body; no selection
-    cfg = _config(ns(measurements="height=1.83,group=men,leg=1.04"))
+    cfg = tracker_config(opts(measurements="height=1.83,group=men,leg=1.04"))
     assert cfg.body_candidates == () and cfg.body is not None
     assert cfg.body.height == pytest.approx(1.83)
-    assert _config(ns(measurements="subject", measurements_subject=True)).body is None  # eval: with the scene
+    assert tracker_config(opts(measurements="subject", subject_allowed=True)).body is None  # eval: with the scene
     for bad in ({"measurements": "subject"}, {"measurements": "subject:leg"},  # run: not the scene's person
-                {"measurements": "subjectively", "measurements_subject": True},
-                {"measurements": "subject:inseam", "measurements_subject": True}):
+                {"measurements": "subjectively", "subject_allowed": True},
+                {"measurements": "subject:inseam", "subject_allowed": True}):
         with pytest.raises(ValueError):
-            _config(ns(**bad))
+            tracker_config(opts(**bad))
     with pytest.raises(ValueError, match="not both"):
-        _config(ns(measurements="height=1.7", body="mMA"))
+        tracker_config(opts(measurements="height=1.7", body="mMA"))
     with pytest.raises(ValueError, match="leg"):
-        _config(ns(measurements="height=1.7,leg=2"))
-    from tracker_service.app.tracker_cli import _subject_keys
-
-    assert _subject_keys(None) == () and _subject_keys("height=1.7") == () and _subject_keys("subjects") == ()
-    assert _subject_keys("subject:height,leg") == ("height", "leg") and "arm" in _subject_keys("subject")
+        tracker_config(opts(measurements="height=1.7,leg=2"))
+    assert subject_keys(None) == () and subject_keys("height=1.7") == () and subject_keys("subjects") == ()
+    assert subject_keys("subject:height,leg") == ("height", "leg") and "arm" in subject_keys("subject")
     with pytest.raises(ValueError):
-        _subject_keys("subject:inseam")
+        subject_keys("subject:inseam")
 
 
 def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> None:
-    from tracker_service.app.tracker_cli import _config, _passes
     from tracker_service.cues.appearance import AppearanceError
 
-    assert _config(ns()).appearance is None
-    net = _config(ns(appearance=str(weak_appearance_net))).appearance
+    assert tracker_config(opts()).appearance is None
+    net = tracker_config(opts(appearance=str(weak_appearance_net))).appearance
     assert net is not None and net.meta == {"fixture": "standing"}
     with pytest.raises(AppearanceError, match="train-appearance"):  # a named file must exist
-        _config(ns(appearance=str(tmp_path / "none.npz")))
+        tracker_config(opts(appearance=str(tmp_path / "none.npz")))
     (tmp_path / "junk.npz").write_text("not a network")
     with pytest.raises(AppearanceError, match="corrupt"):
-        _config(ns(appearance=str(tmp_path / "junk.npz")))
-    assert _passes("1000:3,2000:2") == (((1000, 3), (2000, 2)),)
-    assert _passes("1000:3,2000:2;5000:2") == (((1000, 3), (2000, 2)), ((5000, 2),))  # one list per network
+        tracker_config(opts(appearance=str(tmp_path / "junk.npz")))
+    assert parse_passes("1000:3,2000:2") == (((1000, 3), (2000, 2)),)
+    assert parse_passes("1000:3,2000:2;5000:2") == (((1000, 3), (2000, 2)), ((5000, 2),))  # one list per network
     for bad in ("", "1000", "a:b", "5:0", "1000:3;", ";1000:3"):
         with pytest.raises(argparse.ArgumentTypeError):
-            _passes(bad)
+            parse_passes(bad)
 
 
 @pytest.mark.slow

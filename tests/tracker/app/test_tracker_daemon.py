@@ -164,7 +164,7 @@ def test_eval_prints_the_json_contract(small_db, weak_appearance_net) -> None:  
 
 
 def test_evaluate_motion_shows_every_frame_to_its_observer(small_db) -> None:  # type: ignore[no-untyped-def]
-    from protocol.motion import load_motion
+    from protocol.formats.load import load_motion
     from tracker_service.app.evaluate import EvalOptions, evaluate_motion
     from tracker_service.templates.database import load_db
 
@@ -180,7 +180,7 @@ def test_evaluate_motion_shows_every_frame_to_its_observer(small_db) -> None:  #
 
 
 def test_eval_can_give_the_tracker_the_persons_own_measurements(small_db) -> None:  # type: ignore[no-untyped-def]
-    from protocol.motion import load_motion
+    from protocol.formats.load import load_motion
     from protocol.skeleton import JOINT_INDEX
     from tracker_service.app.evaluate import EvalOptions, evaluate_motion, subject_measurements
     from tracker_service.body.measured import given_body
@@ -207,7 +207,7 @@ def test_eval_can_give_the_tracker_the_persons_own_measurements(small_db) -> Non
 
 
 def test_start_up_sigterm_handler_is_kept_only_for_commands_with_a_clean_stop() -> None:
-    """``_entry``'s start-up handler turns SIGTERM into exit status 0; ``default_sigterm`` (called
+    """``entry``'s start-up handler turns SIGTERM into exit status 0; ``default_sigterm`` (called
     for build-db and eval) puts the default action back, and leaves any other handler alone."""
     from tracker_service.app import entry as _entry
 
@@ -236,7 +236,7 @@ def test_per_frame_commands_run_blas_on_one_thread(monkeypatch: pytest.MonkeyPat
     import tracker_service.app.cli as cli
     from tracker_service.app import entry as _entry
 
-    monkeypatch.setattr(cli, "main", lambda argv: 0)
+    monkeypatch.setattr(cli, "main", lambda argv, **_: 0)
     before = signal.getsignal(signal.SIGTERM)  # main() installs its start-up handler
     try:
         for cmd, want in ((["run"], "1"), (["eval", "--bvh", "x"], "1"), (["build-db"], None),

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import mocap_root
 from protocol.kinematics import fk
-from protocol.motion import load_motion
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_JOINTS, CAPSULE_PART, N_PARTS, PARTS, standing_pose
 from tracker_service.body.family import body_model
@@ -96,6 +96,31 @@ def test_labels_match_reference_and_counts(database_joints: tuple[np.ndarray, np
         _, vis, area = render_labels_with_areas(j, radii, CAM)
         assert np.array_equal(vis, counts)
         assert np.all(area >= vis) and counts.sum() == mask.sum()
+
+
+def test_batch_run_and_area_kernels_equal_the_dense_reference(database_joints: tuple[np.ndarray, np.ndarray]
+                                                              ) -> None:
+    """The batch fill, the run kernels and the label kernel's areas, each against the dense reference
+    directly: runs are the reference mask's runs, a part's area is the reference silhouette of its
+    capsules alone."""
+    joints, radii = database_joints
+    sub = joints[25:33]
+    refs = [render_silhouette_reference(j, radii, CAM) for j in sub]
+    np.testing.assert_array_equal(render_silhouettes(sub, radii, CAM), np.stack(refs))
+    data, ptr = silhouette_runs_batch(sub, radii, CAM)
+    for k, (j, ref) in enumerate(zip(sub, refs, strict=True)):
+        runs = mask_to_runs(ref)
+        assert len(runs) > 50
+        np.testing.assert_array_equal(silhouette_runs(j, radii, CAM), runs)
+        np.testing.assert_array_equal(data[ptr[k]:ptr[k + 1]], runs)
+    part = np.asarray(CAPSULE_PART)
+    for j in sub[:3]:
+        ends = j[CAPSULE_JOINTS]
+        _, _, area = render_labels_with_areas(j, radii, CAM)
+        want = [int(render_silhouette_reference(ends[part == p], radii[part == p], CAM).sum()) if np.any(part == p)
+                else 0 for p in range(N_PARTS)]
+        np.testing.assert_array_equal(area, want)
+        assert (area > 0).sum() > N_PARTS // 2
 
 
 def _side_view(yaw_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

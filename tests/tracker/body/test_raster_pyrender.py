@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import mocap_root
 from protocol.kinematics import fk
-from protocol.motion import load_motion
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_PART, N_PARTS
 from tracker_service.body.family import BODY_MODELS, body_model

@@ -207,7 +207,7 @@ def test_network_file_round_trip_and_errors(tmp_path: Path, rng: np.random.Gener
     p = save_appearance(tmp_path / "net.npz", net)
     back = load_appearance(p)
     x = net_input(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8), rng.random((16, 16)) < 0.5)
-    assert back.size == 16 and back.meta == {"test": True}
+    assert back.size == 16 and back.meta == net.meta == {"fixture": "constant"}
     assert np.array_equal(forward(back, x), forward(net, x))
     with pytest.raises(AppearanceError, match="train-appearance"):
         load_appearance(tmp_path / "missing.npz")
@@ -314,7 +314,7 @@ def test_training_learns_a_toy_depth_and_mirrors_the_joints(rng: np.random.Gener
 @pytest.mark.slow
 def test_rendered_training_views(tmp_path: Path) -> None:
     """A gesture script played by the synthetic scene: crops of the person, joints over the height."""
-    from tracker_service.app.tracker_cli import DEFAULT_SCRIPT
+    from tracker_service.app.resources import DEFAULT_SCRIPT
     from tracker_service.build.appearance_train import render_samples, render_take
 
     s = render_take(DEFAULT_SCRIPT, seed=5, every=20, size=32)
@@ -331,7 +331,7 @@ def test_rendered_training_views(tmp_path: Path) -> None:
 
 def test_gesture_scripts_join_the_training_takes(tmp_path: Path) -> None:
     """The scripts are numbered after the recordings and cached by name, not by number."""
-    from tracker_service.app.tracker_cli import DEFAULT_SCRIPT
+    from tracker_service.app.resources import DEFAULT_SCRIPT
     from tracker_service.build.appearance_train import SCRIPT_ROW_BASE, render_samples, training_takes
 
     takes = training_takes([(3, "a.bvh"), (8, "b.bvh")], [DEFAULT_SCRIPT])
@@ -414,10 +414,10 @@ def test_the_cue_weighs_the_filter_towards_what_the_network_sees(small_db, rng: 
 
 def test_proposed_leaves_are_evaluated_beside_the_trees_candidates(small_db) -> None:  # type: ignore[no-untyped-def]
     """A leaf the tree search does not reach is scored when proposed, and can win the frame."""
-    from dataclasses import replace
 
     from protocol.motion import ground
     from tracker_service.body.raster import render_silhouette
+    from tracker_service.estimators.base import LeafCost, Observation
     from tracker_service.estimators.tree_filter.filter import initial_state, step
     from tracker_service.estimators.tree_filter.model import FilterParams
     from tracker_service.silhouette.features import preprocess
@@ -431,19 +431,19 @@ def test_proposed_leaves_are_evaluated_beside_the_trees_candidates(small_db) -> 
     mask = render_silhouette(truth[30], loaded.body.capsule_radii, cam)
     feats, obs = preprocess(mask, "xor"), observed_placement(mask, cam)
     narrow = FilterParams(max_keep=(1, 1), keep_likelihood=(0, 0), keep_rel=1.0, support=4)
-    _, est0 = step(initial_state(), db, feats, narrow, obs)
+    _, est0 = step(initial_state(), db, Observation(feats, obs), narrow)
     outside = np.setdiff1d(np.arange(db.n_leaves), est0.support_leaves)
     # a leaf the narrow search did not score: the one nearest its MAP leaf in joint space
     j = db.leaf_joints3d[outside]
     near = int(outside[np.argmin(np.abs(j - db.leaf_joints3d[est0.leaf]).sum(axis=(1, 2)))])
-    _, est1 = step(initial_state(), db, feats, narrow, obs, proposals=np.array([near, est0.leaf]))
+    _, est1 = step(initial_state(), db, Observation(feats, obs, proposals=np.array([near, est0.leaf])), narrow)
     # one new leaf on the 3 x 3 grid (and, with few candidates, in the refinement of the best 6)
     assert est0.evaluations[-1] + 9 <= est1.evaluations[-1] <= est0.evaluations[-1] + 18
     assert near in est1.support_leaves
     mu = db.leaf_joints3d[near].astype(np.float64)  # and a network that sees it makes it the estimate
-    _, est2 = step(initial_state(), db, feats, replace(narrow, appearance_weight=1.0), obs,
-                     appearance_cost=lambda lv: joints_cost(mu, np.full((N_JOINTS, 3), 1e-4), db.leaf_joints3d[lv]),
-                     proposals=np.array([near]))
+    sharp = np.full((N_JOINTS, 3), 1e-4)
+    cue = LeafCost("appearance", 1.0, lambda lv, _p: joints_cost(mu, sharp, db.leaf_joints3d[lv]))
+    _, est2 = step(initial_state(), db, Observation(feats, obs, leaf_costs=(cue,), proposals=np.array([near])), narrow)
     assert est2.leaf == near
 
 
@@ -556,7 +556,7 @@ def test_an_ensemble_pools_its_networks_readings_and_round_trips(tmp_path: Path,
     a_mu, b_mu = rng.normal(0, 0.2, (N_JOINTS, 3)), rng.normal(0, 0.2, (N_JOINTS, 3))
     a, b = constant_reading_net(a_mu, log_var=-6.0), constant_reading_net(b_mu, log_var=-5.0)
     both = ensemble([a, b])
-    assert len(both.networks) == 2 and both.meta == {"members": [{"test": True}, {"test": True}]}
+    assert len(both.networks) == 2 and both.meta == {"members": [{"fixture": "constant"}, {"fixture": "constant"}]}
     frame = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
     mask = np.zeros((120, 160), bool)
     mask[20:100, 60:100] = True

@@ -79,7 +79,7 @@ def test_phases_and_outputs(small_db, rng: np.random.Generator) -> None:  # type
 
 def test_the_stature_is_measured_under_a_raised_hand(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     """A tall man waving with a hand above his head through the whole initialisation: the stature
-    is measured on every frame (before session 28 on none: the head was never the silhouette's
+    is measured on every frame (it once measured none: the head was never the silhouette's
     top) from the silhouette's top down to the head's, as the network reads the pose."""
     subject = body_model("mTA").body
     loaded, cam, room, _ = _scene(small_db, rng, subject)

@@ -52,7 +52,7 @@ def test_jitter_is_reduced_and_fast_moves_follow() -> None:
         raw.append((y, x))
         smooth.append((_yaw(out), out[0]))
     r, s = np.std(raw, axis=0), np.std(smooth[10:], axis=0)
-    # (session 26's cut-offs are lighter than session 3's, which halved this jitter: the heading
+    # (today's cut-offs are lighter than the first ones, which halved this jitter: the heading
     # now also follows the appearance network's hips, and the lag cost more than the jitter)
     assert s[0] < 0.85 * r[0] and s[1] < 0.5 * r[1]
     # a fast turn of 90 degrees over 5 frames: the adaptive cut-off keeps the lag short

@@ -12,9 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import mocap_root
 from protocol.kinematics import fk
-from protocol.motion import Motion, load_motion
+from protocol.motion import Motion
 from protocol.rotations import rotvec_to_matrix
 from protocol.skeleton import N_PARTS
 from tracker_service.body.family import BODY_MODELS

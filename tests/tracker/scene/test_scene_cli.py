@@ -1,4 +1,4 @@
-"""``mocap-tracker render`` (called through run_render, as cli.py will)."""
+"""``mocap-tracker render``: parsed as cli.py parses it, run through its Options."""
 
 from __future__ import annotations
 
@@ -12,22 +12,27 @@ import pytest
 
 from protocol.formats.mocap_data import mocap_root
 from protocol.skeleton import JOINT_NAMES, N_PARTS, POSE_SIZE
-from tracker_service.app.render_cli import add_render_parser, label_palette, run_render
+from tracker_service.app.commands import render as render_command
+from tracker_service.app.render import label_palette
 
 SCRIPT = Path(__file__).resolve().parents[3] / "protocol" / "scripts" / "crouch.toml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="mocap-tracker")
-    add_render_parser(parser.add_subparsers(dest="command", required=True))
+    render_command.add_parser(parser.add_subparsers(dest="command", required=True), ())
     return parser.parse_args(argv)
+
+
+def run_render(args: argparse.Namespace) -> int:
+    """What ``mocap-tracker`` does with parsed arguments: Options from them, then the command."""
+    return render_command.main(render_command.options_from_args(args))
 
 
 def test_render_to_a_folder_with_truth_and_masks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "crouch"
     args = _parse(["render", "--script", str(SCRIPT), "--out", str(out), "--frames", "6", "--empty-prefix", "2",
                    "--seed", "4", "--masks", "--json"])
-    assert args.func is run_render
     assert run_render(args) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["frames"] == 6

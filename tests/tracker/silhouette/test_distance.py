@@ -241,7 +241,7 @@ def test_xor_features_kernel_equals_the_numpy_path(rng: np.random.Generator) -> 
 
 def test_bad_input_to_the_new_kernels_is_an_error_not_a_crash() -> None:
     """The rectangle and skin kernels have no bounds checks: their wrappers reject what would
-    make them read or write out of range (review of session 16)."""
+    make them read or write out of range."""
     from tracker_service.silhouette.distance import run_rectangles
 
     with pytest.raises(ValueError, match="rows"):

@@ -3,8 +3,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from protocol.formats.load import load_motion
 from protocol.formats.mocap_data import IndexEntry
-from protocol.motion import load_motion
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import POSE_SIZE, standing_pose
 from tracker_service.templates.pruning import pose_features, prune_poses, prune_poses_reference

@@ -1,7 +1,14 @@
 import numpy as np
 import pytest
 
-from tracker_service.templates.tree import PackedMaskDistance, build_tree, cluster_node, pack_masks
+from tracker_service.templates._kernels import hamming_to_many
+from tracker_service.templates.tree import (
+    PackedMaskDistance,
+    build_tree,
+    cluster_node,
+    hamming_to_many_reference,
+    pack_masks,
+)
 
 
 class EuclidDistance:
@@ -20,6 +27,20 @@ def test_hamming_kernel_matches_numpy(rng: np.random.Generator) -> None:
     got = d.distances(3, np.arange(50))
     want = (masks != masks[3]).reshape(50, -1).mean(axis=1)
     np.testing.assert_allclose(got, want)
+
+
+@pytest.mark.parametrize("shape", [(60, 80), (7, 9), (8, 8)])  # a padded last word, less than one word, exact
+def test_hamming_kernel_equals_its_reference(rng: np.random.Generator, shape: tuple[int, int]) -> None:
+    masks = rng.random((40, *shape)) > rng.uniform(0.05, 0.95, (40, 1, 1))
+    packed = pack_masks(masks)
+    for proto in (0, 17, 39):
+        members = np.concatenate([rng.permutation(40), [proto, proto]]).astype(np.int64)  # itself, repeated
+        got = hamming_to_many(packed, proto, members)
+        want = hamming_to_many_reference(packed, proto, members)
+        assert got.dtype == want.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(want, (masks[members] != masks[proto]).reshape(len(members), -1).sum(axis=1))
+    assert len(hamming_to_many(packed, 3, np.zeros(0, np.int64))) == 0
 
 
 def test_cluster_radius_is_bounded_and_first_is_medoid(rng: np.random.Generator) -> None:

@@ -115,7 +115,7 @@ class FilterParams:
     keep_likelihood : tuple of int
         Per level, the best nodes by likelihood alone are expanded as well (the data-driven
         proposal: a misleading prior cannot prune the subtree that explains the silhouette).
-        (96, 192) since session 16, when the faster distance kernel paid for it; (48, 96) before.
+        (96, 192): the faster distance kernel pays for it; (48, 96) was measured less accurate.
     grid : tuple of (int, int)
         Placement search grid (shift steps x scale steps) per level, around each node's parent's
         best placement.
@@ -185,19 +185,19 @@ class FilterParams:
         shirt).
     shoe_weight : float
         Weight of the shoe cue's cost (:func:`tracker_service.cues.shoes.feet_cost`, relative to the
-        cheapest leaf) in the leaf level's negative log likelihood (``step(..., shoe_cost=)``);
+        cheapest leaf) in the leaf level's negative log likelihood (a ``LeafCost`` of the observation);
         0: the cue only re-weights the published legs. 0.02: over the 51 held-out takes, root
         error -0.14 / -0.15 / -0.49 cm on three subjects, MPJPE -0.02 cm on average (0.05 was
-        worse; docs/TRACKER.md, session 14). The published legs' re-weighting
+        worse; docs/TRACKER.md). The published legs' re-weighting
         (``ShoeParams.weight``) multiplies the support's tempered posterior, which already holds
         this term (``exp(-shoe_weight * cost / T)``): the two were tuned together. The term is
         scored at each leaf's placement before the refinement and held over the refinement grid.
     appearance_weight : float
         Weight of the appearance cue's cost (:func:`tracker_service.cues.appearance.joints_cost`,
         relative to the cheapest leaf) in the leaf level's negative log likelihood
-        (``step(..., appearance_cost=)``); 0: off. 1: the network's Gaussian at face value; 8 held-out
+        (a ``LeafCost`` of the observation); 0: off. 1: the network's Gaussian at face value; 8 held-out
         takes gave 6.97 / 6.80 / 6.66 / 6.58 / 6.52 / 6.49 / 6.47 cm at 0.05 / 0.1 / 0.2 / 0.6 / 1 / 2 / 4
-        (docs/TRACKER.md, session 24).
+        (docs/TRACKER.md).
     appearance_coords : tuple of int
         Coordinates of the joints the appearance cue scores (0 = x, 1 = y, 2 = depth).
     appearance_proposals : int

@@ -1,0 +1,157 @@
+"""The ``mocap-tracker`` command line: each command's arguments become its frozen options, ``--version``,
+the start-up SIGTERM hook, and the app layer's import structure (no entry <-> cli cycle; nothing
+below the parser imports argparse)."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tracker_service.app import cli
+from tracker_service.app.options import (
+    BuildDbOptions,
+    DemoOptions,
+    EvalCommandOptions,
+    RenderOptions,
+    ReplayCommandOptions,
+    RunCommandOptions,
+    TrainAppearanceOptions,
+)
+from tracker_service.app.resources import default_script_dirs
+
+APP = Path(cli.__file__).resolve().parent
+REPO = APP.parents[1]
+
+
+def parse(argv: list[str]) -> Any:
+    args = cli.build_parser().parse_args(argv)
+    (command,) = [c for c in cli.COMMANDS if c.NAME == args.command]
+    return command.options_from_args(args)
+
+
+def test_every_command_is_registered_once_in_help_order() -> None:
+    assert [c.NAME for c in cli.COMMANDS] == ["replay", "demo", "build-db", "train-appearance", "run", "eval",
+                                              "render"]
+
+
+def test_run_arguments_become_run_options() -> None:
+    o = parse(["run", "--source", "frames:/data/clip", "--wait-for-subscriber", "5", "--as-fast-as-possible",
+               "--id", "cam1", "--frames", "9", "--duration", "2.5", "--seed", "3", "--no-refine", "--no-skin",
+               "--max-heading", "35", "--appearance", "off", "--pose", "map", "--listen", "tcp/127.0.0.1:7999"])
+    assert isinstance(o, RunCommandOptions)
+    assert (o.source, o.seed) == ("frames:/data/clip", 3)
+    d = o.daemon
+    assert (d.tracker_id, d.max_frames, d.duration, d.realtime, d.wait_for_subscriber) == ("cam1", 9, 2.5, False, 5.0)
+    t = o.tracker
+    assert not t.refine and not t.skin and t.shoes and t.smoothing and t.proportions and t.reading_filter
+    assert (t.max_heading_deg, t.appearance, t.pose, t.subject_allowed) == (35.0, "off", "map", False)
+    assert (o.zenoh.role, o.zenoh.listen, o.zenoh.connect, o.zenoh.mode) == ("publisher", ("tcp/127.0.0.1:7999",),
+                                                                              None, None)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        o.source = "camera"  # type: ignore[misc]
+    defaults = parse(["run"])
+    assert defaults.daemon.realtime and defaults.daemon.tracker_id == "default" and defaults.tracker.db is None
+
+
+def test_eval_arguments_become_eval_options() -> None:
+    o = parse(["eval", "--script", "wave.toml", "--json", "--frames", "40", "--seed", "2",
+               "--force-loss-every", "1.5", "--measurements", "subject:leg", "--db", "db/x", "--no-occlusion"])
+    assert isinstance(o, EvalCommandOptions)
+    assert (o.motion, o.json) == ("wave.toml", True)
+    assert (o.evaluation.frames, o.evaluation.seed, o.evaluation.force_loss_every_s) == (40, 2, 1.5)
+    assert o.tracker.subject_allowed and o.tracker.measurements == "subject:leg" and o.tracker.db == "db/x"
+    assert not o.tracker.occlusion
+    assert parse(["eval", "--bvh", "take.bvh"]).motion == "take.bvh"
+
+
+def test_build_db_and_train_appearance_options() -> None:
+    o = parse(["build-db", "--bodies", "mMA,wTY", "--out", "dbs", "--max-poses", "50", "--takes", "2"])
+    assert o == BuildDbOptions(bodies=("mMA", "wTY"), scripts=default_script_dirs(), out="dbs", max_poses=50,
+                               takes=2)
+    assert parse(["build-db", "--no-scripts", "--scripts", "a"]).scripts == ()  # --no-scripts wins
+    assert parse(["build-db", "--scripts", "a", "--scripts", "b"]).scripts == ("a", "b")
+    t = parse(["train-appearance", "--no-posture", "--passes", "1:2;3:4", "--jobs", "3", "--width", "8"])
+    assert isinstance(t, TrainAppearanceOptions)
+    assert t.posture_passes == () and t.passes == (((1, 2),), ((3, 4),)) and (t.jobs, t.width) == (3, 8)
+    assert t.scripts == default_script_dirs() and t.out is None
+    t = parse(["train-appearance", "--posture-passes", "9:60", "--no-scripts"])
+    assert t.posture_passes == (((9, 60),),) and t.scripts == ()
+    assert parse(["train-appearance"]).posture_passes is None  # the defaults
+
+
+def test_replay_render_and_demo_options() -> None:
+    r = parse(["replay", "--synthetic-wave", "--rate", "60", "--loop", "--id", "w1", "--frames", "5"])
+    assert isinstance(r, ReplayCommandOptions) and r.synthetic_wave and r.motion is None
+    assert (r.publish.tracker_id, r.publish.rate, r.publish.loop, r.publish.max_frames) == ("w1", 60.0, True, 5)
+    assert parse(["replay", "--bvh", "a.bvh"]).motion == "a.bvh"
+    o = parse(["render", "--script", "s.toml", "--out", "o.mp4", "--no-noise", "--jitter", "1.5", "--masks"])
+    assert o == RenderOptions(motion="s.toml", out="o.mp4", noise=False, jitter_px=1.5, masks=True)
+    assert parse(["demo", "--replay", "--duration", "2"]) == DemoOptions(duration=2.0, replay=True)
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["--version"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert out == f"mocap-tracker {cli.version()}\n" and cli.version()[0].isdigit()
+
+
+def test_default_sigterm_hook_only_for_commands_without_a_clean_stop(tmp_path: Path) -> None:
+    calls: list[str] = []
+    assert cli.main(["replay", "--bvh", str(tmp_path / "none.bvh")], default_sigterm=lambda: calls.append("x")) == 1
+    assert calls == []  # replay installs its own handlers
+    assert cli.main(["eval", "--bvh", str(tmp_path / "none.bvh")], default_sigterm=lambda: calls.append("x")) == 1
+    assert calls == ["x"]
+
+
+def test_entry_hands_the_cli_its_sigterm_hook(monkeypatch: pytest.MonkeyPatch) -> None:
+    import signal
+
+    from tracker_service.app import entry
+
+    seen: dict[str, Any] = {}
+    monkeypatch.setattr(cli, "main", lambda argv, **kw: seen.update(kw, argv=argv) or 0)
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        assert entry.main(["eval", "--bvh", "x"]) == 0
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert seen == {"argv": ["eval", "--bvh", "x"], "default_sigterm": entry.default_sigterm}
+
+
+def _imports(path: Path, top_level_only: bool) -> set[str]:
+    tree = ast.parse(path.read_text(), str(path))
+    nodes = tree.body if top_level_only else list(ast.walk(tree))
+    out: set[str] = set()
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            out.add(node.module)
+            out.update(f"{node.module}.{a.name}" for a in node.names)
+    return out
+
+
+def test_entry_imports_only_the_standard_library_and_nothing_imports_entry() -> None:
+    top = _imports(APP / "entry.py", top_level_only=True)
+    assert {m.split(".")[0] for m in top} <= set(sys.stdlib_module_names) | {"__future__"}, top
+    for path in APP.rglob("*.py"):
+        if path.name != "entry.py":
+            assert "tracker_service.app.entry" not in _imports(path, top_level_only=False), path
+    r = subprocess.run([sys.executable, "-c", "import sys, tracker_service.app.entry; "
+                        "print(sorted(m for m in sys.modules if m.startswith(('tracker_service.app.cli', 'numpy'))))"],
+                       cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
+
+
+@pytest.mark.parametrize("name", ["daemon.py", "replay_daemon.py", "evaluate.py", "replay.py", "render.py",
+                                  "resources.py", "tracker_config.py", "appearance_training.py", "options.py"])
+def test_nothing_below_the_parser_imports_argparse(name: str) -> None:
+    assert "argparse" not in _imports(APP / name, top_level_only=False)

@@ -1,0 +1,50 @@
+"""A person already in view when the tracker starts: it tracks or withholds, never publishes garbage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from protocol.formats.load import load_motion
+from tracker_service.camera import default_camera
+from tracker_service.pipeline.process import TrackerConfig, implausible, new_state, process_frame
+
+
+def test_implausible_poses_are_named() -> None:
+    cam = default_camera()
+    joints = np.zeros((24, 3))
+    joints[:, 1] = 1.0  # 3 m in front of the default camera, pelvis 1 m high
+    assert implausible(joints, cam) is None
+    far = joints.copy()
+    far[:, 2] = -150.0
+    assert implausible(far, cam) == "depth"
+    high = joints.copy()
+    high[0, 1] = 3.0
+    assert implausible(high, cam) == "height"
+    bad = joints.copy()
+    bad[3, 0] = np.nan
+    assert implausible(bad, cam) == "non-finite"
+
+
+@pytest.mark.slow
+def test_a_person_in_view_at_start_is_never_published_far_off(small_db, mocap_dir) -> None:  # type: ignore[no-untyped-def]
+    """The background is learned from frames that already show the person (no empty room): every
+    pose the tracker publishes has its pelvis within 50 cm of the truth, or it publishes none."""
+    from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
+    from tracker_service.templates.database import load_db
+
+    loaded = load_db(small_db[-1])
+    motion = load_motion(mocap_dir / "bandai" / "dataset-2_raise-up-both-hands_normal_001.bvh", fps=30.0)
+    scene = SyntheticScene(motion, seed=4, config=SceneConfig(fps=30.0, empty_prefix=0))
+    cfg = TrackerConfig(distance="xor", background_frames=10)
+    state = new_state(loaded.body)
+    offsets = []
+    try:
+        for i in range(min(scene.n_frames, 70)):
+            fr = scene.frame(i)
+            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
+            if res.joints is not None:
+                offsets.append(float(np.linalg.norm(res.joints[0] - fr.truth.joints[0])))
+    finally:
+        scene.close()
+    assert not offsets or max(offsets) < 0.5, max(offsets)

@@ -1,0 +1,114 @@
+"""Arguments several ``mocap-tracker`` commands share and the functions that read them back into the
+frozen options: the tracker options of ``run`` and ``eval`` (:func:`add_tracker_args`,
+:func:`tracker_options`), the Zenoh session options (added by
+:func:`protocol.net.session.add_zenoh_args`, read by :func:`zenoh_options`), the tracker id,
+``--wait-for-subscriber`` and the gesture-script folders of ``build-db`` and ``train-appearance``."""
+
+from __future__ import annotations
+
+import argparse
+
+from protocol.wire.keys import validate_id
+from tracker_service.app.options import TrackerOptions, ZenohOptions
+from tracker_service.app.resources import default_script_dirs
+
+__all__ = [
+    "UsageError",
+    "add_tracker_args",
+    "script_dirs",
+    "tracker_id",
+    "tracker_options",
+    "wait_for_subscriber",
+    "zenoh_options",
+]
+
+
+class UsageError(Exception):
+    """A command-line argument the parser could not check; the command line exits with status 2
+    and the message, as for the parser's own errors."""
+
+
+def tracker_id(text: str) -> str:
+    """``argparse`` type of a tracker id (letters, digits, ``_`` and ``-``)."""
+    try:
+        return validate_id(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def wait_for_subscriber(args: argparse.Namespace) -> float:
+    """``--wait-for-subscriber`` (seconds, >= 0)."""
+    seconds = float(args.wait_for_subscriber)
+    if seconds < 0:
+        raise UsageError("--wait-for-subscriber must be >= 0")
+    return seconds
+
+
+def script_dirs(args: argparse.Namespace) -> tuple[str, ...]:
+    """The gesture-script folders ``--scripts`` / ``--no-scripts`` name (build-db and
+    train-appearance); the bundled ones without either."""
+    if args.no_scripts:
+        return ()
+    if args.scripts is not None:
+        return tuple(args.scripts)
+    return default_script_dirs()
+
+
+def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+    """The options :func:`protocol.net.session.add_zenoh_args` added."""
+    return ZenohOptions(role=args.zenoh_role, mode=args.mode,
+                        connect=None if args.connect is None else tuple(args.connect),
+                        listen=None if args.listen is None else tuple(args.listen),
+                        config_file=args.config)
+
+
+def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
+    """Add the tracker options (``--db``, ``--body``, the cues and stages); ``subject``: ``eval``'s
+    ``--measurements subject[:KEY,...]`` is allowed."""
+    p.add_argument("--db", metavar="PATH", help="template database folder (default: out/db/mMA, "
+                                                "built on first use)")
+    p.add_argument("--body", default="auto", metavar="auto|NAME",
+                   help="body model: auto (chosen by silhouette match on the first frames) or a name")
+    p.add_argument("--measurements", metavar="K=V,...",
+                   help="build the body from the user's measurements instead of choosing one: height=M "
+                        "(required), group=men|women|children, chest=M, waist=M, hip=M, weight=KG, "
+                        "shoulder=M (joint spacing), arm=RATIO, leg=RATIO (1.0 = the family's proportions)"
+                        + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
+                           if subject else ""))
+    p.add_argument("--estimator", choices=["tree"], default="tree", help="pose estimator (default: tree)")
+    p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
+                   help="silhouette distance (default: xor, the most accurate in our measurements; the "
+                        "paper's choice is nwxor)")
+    p.add_argument("--no-occlusion", action="store_true", help="disable eq. 14 (dynamic model DM1)")
+    p.add_argument("--max-heading", type=float, metavar="DEG",
+                   help="the user faces the camera within DEG degrees (e.g. 35 for the game): poses turned "
+                        "further get no prior (default: any heading)")
+    p.add_argument("--no-skin", action="store_true", help="silhouettes only (no skin colour cue for the hands)")
+    p.add_argument("--no-shoes", action="store_true", help="no shoe colour cue for the legs")
+    p.add_argument("--no-smoothing", action="store_true", help="publish the raw per-frame estimate "
+                                                              "(no One Euro smoothing)")
+    p.add_argument("--appearance", metavar="PATH|off",
+                   help="the appearance cue's network (default: out/appearance/net.npz when it exists; "
+                        "mocap-tracker train-appearance makes it, once); off: no cue")
+    p.add_argument("--no-refine", action="store_true",
+                   help="with the appearance cue: publish the filter's pose as it is, not refined toward the "
+                        "joints the network reads")
+    p.add_argument("--no-proportions", action="store_true",
+                   help="with the appearance cue: keep the selected body model's bone proportions (by default "
+                        "the torso, arms and legs take the lengths the network reads in the first second)")
+    p.add_argument("--no-reading-filter", action="store_true",
+                   help="with the refinement: refine toward each frame's raw reading, not the readings "
+                        "Kalman-filtered over time")
+    p.add_argument("--pose", choices=("mean", "map"), default="mean",
+                   help="publish the posterior-mean pose (default: hedges between the modes of an "
+                        "ambiguous silhouette) or the MAP leaf's pose")
+
+
+def tracker_options(args: argparse.Namespace, *, subject: bool) -> TrackerOptions:
+    """The options :func:`add_tracker_args` added."""
+    return TrackerOptions(
+        db=args.db, body=args.body, measurements=args.measurements, subject_allowed=subject,
+        estimator=args.estimator, distance=args.distance, occlusion=not args.no_occlusion,
+        max_heading_deg=args.max_heading, skin=not args.no_skin, shoes=not args.no_shoes,
+        smoothing=not args.no_smoothing, appearance=args.appearance, refine=not args.no_refine,
+        proportions=not args.no_proportions, reading_filter=not args.no_reading_filter, pose=args.pose)

@@ -1,0 +1,292 @@
+"""The frozen options of the ``mocap-tracker`` commands and of the app cores they drive.
+
+Each command's parse function (``options_from_args`` in :mod:`tracker_service.app.commands`) turns
+its ``argparse.Namespace`` into one of these right after parsing; nothing below the parser sees the
+namespace. They describe app wiring (files, ids, limits, which cues are on); the algorithms' own
+tuning is the ``*Params`` of the pipeline. This module imports nothing heavy (no pipeline, cv2,
+numba or zenoh), so building the parser stays cheap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+from protocol.wire.keys import DEFAULT_TRACKER_ID
+
+if TYPE_CHECKING:
+    import zenoh
+
+__all__ = [
+    "BuildDbOptions",
+    "DemoOptions",
+    "EvalCommandOptions",
+    "EvalOptions",
+    "Passes",
+    "RenderOptions",
+    "ReplayCommandOptions",
+    "ReplayOptions",
+    "RunCommandOptions",
+    "RunOptions",
+    "TrackerOptions",
+    "TrainAppearanceOptions",
+    "ZenohOptions",
+]
+
+#: One list of ``(seed, every)`` passes per network of the appearance ensemble.
+Passes = tuple[tuple[tuple[int, int], ...], ...]
+
+# ------------------------------------------------------------------------------------ shared
+
+
+@dataclass(frozen=True)
+class ZenohOptions:
+    """The Zenoh session settings of ``--mode``, ``--connect``, ``--listen`` and ``--config``
+    (None: the role's default, see :func:`protocol.net.session.build_config`)."""
+
+    role: Literal["publisher", "subscriber"] = "subscriber"
+    mode: str | None = None
+    connect: tuple[str, ...] | None = None
+    listen: tuple[str, ...] | None = None
+    config_file: str | None = None
+
+    def config(self) -> zenoh.Config:
+        """The session configuration (raises FileNotFoundError / ValueError for bad settings)."""
+        from protocol.net.session import build_config
+
+        return build_config(self.role, mode=self.mode,
+                            connect=None if self.connect is None else list(self.connect),
+                            listen=None if self.listen is None else list(self.listen),
+                            config_file=self.config_file)
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """The tracker options of ``run`` and ``eval`` (turned into a
+    :class:`~tracker_service.pipeline.process.TrackerConfig` by
+    :func:`tracker_service.app.tracker_config.tracker_config`).
+
+    Attributes
+    ----------
+    db : str, optional
+        Template database folder (None: ``out/db/mMA``, built on first use).
+    body : str
+        ``auto`` (chosen by silhouette match) or a body model's name.
+    measurements : str, optional
+        The user's measurements (``height=M,...``), or for ``eval`` ``subject[:KEY,...]``.
+    subject_allowed : bool
+        Whether ``measurements`` may name the synthetic person's own (``eval``).
+    estimator, distance, pose : str
+        Pose estimator, silhouette distance, ``mean`` or ``map`` pose.
+    occlusion, skin, shoes, smoothing, refine, proportions, reading_filter : bool
+        Whether that stage or cue is on.
+    max_heading_deg : float, optional
+        The user faces the camera within this many degrees (None: any heading).
+    appearance : str, optional
+        The appearance network's file, ``off``, or None for the default file when it exists.
+    """
+
+    db: str | None = None
+    body: str = "auto"
+    measurements: str | None = None
+    subject_allowed: bool = False
+    estimator: Literal["tree"] = "tree"
+    distance: Literal["nwxor", "cwxor", "xor"] = "xor"
+    occlusion: bool = True
+    max_heading_deg: float | None = None
+    skin: bool = True
+    shoes: bool = True
+    smoothing: bool = True
+    appearance: str | None = None
+    refine: bool = True
+    proportions: bool = True
+    reading_filter: bool = True
+    pose: Literal["mean", "map"] = "mean"
+
+
+# ------------------------------------------------------------------------------ app cores
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Daemon options (:func:`tracker_service.app.daemon.run_tracker`): id, frame limit, duration,
+    status period, real-time pacing, and whether to warm the pipeline up
+    (:mod:`tracker_service.pipeline.warmup`) before the first real frame."""
+
+    tracker_id: str = "default"
+    max_frames: int | None = None
+    duration: float | None = None
+    status_interval: float = 1.0
+    realtime: bool = True
+    fps_hint: float = 30.0
+    wait_for_subscriber: float = 0.0
+    warm_up: bool = True
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """Options of :func:`tracker_service.app.evaluate.evaluate_motion`.
+
+    Attributes
+    ----------
+    frames : int, optional
+        Evaluate at most this many motion frames.
+    seed : int
+        Scene seed (subject, room, lighting, noise).
+    empty_prefix : int
+        Empty-room frames for background learning.
+    force_loss_every_s : float
+        Force a tracking loss (the filter is reset to a wrong pose) every this many seconds of
+        tracking (0: never); re-acquisition time is measured after each: the time until three
+        frames in a row are back within 10 cm (or within 1.25 x the median error of the second
+        before the loss, where the track was worse than 10 cm). A loss not yet back in the clip's
+        last second is not judged.
+    fps : float
+        Frame rate of the rendered video.
+    in_place_travel_m : float
+        Motions whose root travels farther than this are played on the spot (a treadmill), so
+        the person stays in view.
+    subject_measurements : tuple of str
+        Give the tracker these of the scene person's own measurements (keys of
+        :func:`tracker_service.app.evaluate.subject_measurements`: ``height``, ``group``, girths,
+        ``shoulder``, ``arm``, ``leg``) instead of letting it choose a body model: what a user who
+        enters them gets. Empty: the tracker's own choice.
+    """
+
+    frames: int | None = None
+    seed: int = 0
+    empty_prefix: int = 12
+    force_loss_every_s: float = 0.0
+    fps: float = 30.0
+    in_place_travel_m: float = 2.0
+    subject_measurements: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """How to publish a replay (:func:`tracker_service.app.replay_daemon.publish_motion`).
+
+    Attributes
+    ----------
+    tracker_id : str
+        Id in the key expressions and messages.
+    rate : float, optional
+        Output frames per second (default: the motion's own rate).
+    loop : bool
+        Start again at the end (seq and capture time continue).
+    duration : float, optional
+        Stop after this many seconds of stream time.
+    max_frames : int, optional
+        Stop after this many frames.
+    wait_for_subscriber : float
+        Seconds to wait for a subscriber on the pose key before the first frame (0 = start at
+        once). Lets a test or demo receive every frame from ``seq`` 0.
+    status_interval : float
+        Seconds between ``TrackerStatus`` messages.
+    max_burst : int
+        Frames the publisher may send back to back when it has fallen behind.
+    """
+
+    tracker_id: str = DEFAULT_TRACKER_ID
+    rate: float | None = None
+    loop: bool = False
+    duration: float | None = None
+    max_frames: int | None = None
+    wait_for_subscriber: float = 0.0
+    status_interval: float = 1.0
+    max_burst: int = 3
+
+
+# ----------------------------------------------------------------------------- the commands
+
+
+@dataclass(frozen=True)
+class BuildDbOptions:
+    """``mocap-tracker build-db``: which body models, from which recordings and gesture scripts,
+    written where (``out`` None: ``out/db/<body>``; with several bodies a parent folder)."""
+
+    bodies: tuple[str, ...] = ("mMA",)
+    mocap: str | None = None
+    scripts: tuple[str, ...] = ()
+    out: str | None = None
+    max_poses: int | None = None
+    takes: int | None = None
+
+
+@dataclass(frozen=True)
+class TrainAppearanceOptions:
+    """``mocap-tracker train-appearance`` (and the training of a missing default network).
+
+    ``None`` is the default of each setting; ``posture_passes`` ``()`` means no posture-varied
+    passes; ``out`` None is ``out/appearance/net.npz``.
+    """
+
+    out: str | None = None
+    mocap: str | None = None
+    epochs: int | None = None
+    width: int | None = None
+    passes: Passes | None = None
+    posture_passes: Passes | None = None
+    members: int | None = None
+    takes: int | None = None
+    scripts: tuple[str, ...] = ()
+    jobs: int = 1
+
+
+@dataclass(frozen=True)
+class RunCommandOptions:
+    """``mocap-tracker run``: the frame source, the tracker, the Zenoh session and the daemon."""
+
+    source: str = "synthetic"
+    seed: int = 0
+    tracker: TrackerOptions = field(default_factory=TrackerOptions)
+    zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(role="publisher"))
+    daemon: RunOptions = field(default_factory=RunOptions)
+
+
+@dataclass(frozen=True)
+class EvalCommandOptions:
+    """``mocap-tracker eval``: the motion file, the tracker, the evaluation and the output form."""
+
+    motion: str
+    tracker: TrackerOptions = field(default_factory=lambda: TrackerOptions(subject_allowed=True))
+    evaluation: EvalOptions = field(default_factory=EvalOptions)
+    json: bool = False
+
+
+@dataclass(frozen=True)
+class ReplayCommandOptions:
+    """``mocap-tracker replay``: the motion (a BVH or script file, or the built-in wave), the Zenoh
+    session and how to publish."""
+
+    motion: str | None = None
+    synthetic_wave: bool = False
+    zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(role="publisher"))
+    publish: ReplayOptions = field(default_factory=ReplayOptions)
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """``mocap-tracker render``: the motion file, the output (a folder or a video file) and the
+    scene settings (``fps`` None: the motion's own rate)."""
+
+    motion: str
+    out: str
+    seed: int = 0
+    frames: int | None = None
+    empty_prefix: int = 0
+    fps: float | None = None
+    jitter_px: float = 0.0
+    noise: bool = True
+    in_place: bool = False
+    masks: bool = False
+    json: bool = False
+
+
+@dataclass(frozen=True)
+class DemoOptions:
+    """``mocap-tracker demo``: seconds to run, JSON summary only, replay instead of tracking."""
+
+    duration: float = 6.0
+    json: bool = False
+    replay: bool = False

@@ -1,0 +1,136 @@
+"""What the tracker commands load or make once and cache: the template database (``out/db``) and the
+appearance cue's network (``out/appearance``), and the gesture scripts the database adds.
+
+The heavy imports (database building, rendering, PyTorch) happen inside the functions.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tracker_service.app.options import BuildDbOptions, TrainAppearanceOptions
+from tracker_service.paths import REPO_ROOT
+
+__all__ = [
+    "DEFAULT_BODY",
+    "DEFAULT_SCRIPT",
+    "DEFAULT_SCRIPT_DIRS",
+    "build_database",
+    "default_script_dirs",
+    "ensure_appearance",
+    "ensure_db",
+    "gesture_scripts",
+]
+
+log = logging.getLogger(__name__)
+
+#: Motion of ``--source synthetic`` without a file: a shipped gesture script.
+DEFAULT_SCRIPT = REPO_ROOT / "protocol" / "scripts" / "crouch.toml"
+#: Gesture scripts added to the default database: motions the recordings lack (crouch, side-steps,
+#: the game's gestures and near-misses). Data files only: the tracker does not import the game.
+DEFAULT_SCRIPT_DIRS = (REPO_ROOT / "protocol" / "scripts", REPO_ROOT / "game_client" / "scripts")
+#: Body model of the default database.
+DEFAULT_BODY = "mMA"
+
+
+def default_script_dirs() -> tuple[str, ...]:
+    """:data:`DEFAULT_SCRIPT_DIRS` as strings (the folders build-db and train-appearance use
+    without ``--scripts`` / ``--no-scripts``)."""
+    return tuple(str(d) for d in DEFAULT_SCRIPT_DIRS)
+
+
+def gesture_scripts(dirs: Sequence[str]) -> list[Path]:
+    """The gesture scripts (``*.toml`` with ``[[key]]`` tables) in the given folders; other TOML
+    files there (e.g. a game's label file) are skipped with a note."""
+    import tomllib
+
+    out = []
+    for p in sorted(q for d in dirs for q in Path(d).glob("*.toml")):
+        try:
+            doc = tomllib.loads(p.read_text())
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            out.append(p)  # let the script reader report it with file and line
+            continue
+        if "key" in doc:
+            out.append(p)
+        else:
+            print(f"{p} has no [[key]] tables: not a gesture script, skipped", file=sys.stderr)
+    return out
+
+
+def build_database(body_name: str, out: Path, options: BuildDbOptions) -> dict[str, Any]:
+    """Build the template database of one body model into ``out`` (recordings, gesture scripts and
+    limits from ``options``); returns its build metadata (``stats``, ``takes``, ``scripts``,
+    ``build_s``)."""
+    from tracker_service.body.family import body_model
+    from tracker_service.build.database import DbBuildConfig, build_filter_db, is_held_out, training_motions
+    from tracker_service.camera import default_camera
+    from tracker_service.templates.database import save_db
+
+    if options.mocap:
+        os.environ["MOCAP_DATA"] = options.mocap
+    from protocol.formats.mocap_data import index_entries
+
+    body = body_model(body_name).body
+    entries = [e for i, e in enumerate(index_entries()) if not is_held_out(i)]
+    if options.takes:
+        entries = entries[:options.takes]
+    script_files = gesture_scripts(options.scripts)
+    t0 = time.perf_counter()
+    motions = training_motions(body, entries, scripts=script_files, progress=True)
+    db, stats = build_filter_db(motions, body, default_camera(), DbBuildConfig(max_poses=options.max_poses),
+                                progress=True)
+    meta = {"stats": stats, "takes": [e.path for e in entries], "scripts": [str(s) for s in script_files],
+            "build_s": time.perf_counter() - t0}
+    save_db(out, db, body, default_camera(), meta)
+    return meta
+
+
+def ensure_db(path: str | None, body: str = DEFAULT_BODY, build_if_missing: bool = True) -> Any:
+    """Load a database, building the default one first when it is missing."""
+    from tracker_service.templates.database import DatabaseError, default_db_dir, load_db
+
+    p = Path(path) if path else default_db_dir(body)
+    try:
+        return load_db(p)
+    except DatabaseError as exc:
+        if path or not build_if_missing or (p / "manifest.json").exists():
+            raise
+        log.warning("%s; building it now (a few minutes, cached for next time)", exc)
+        build_database(body, p, BuildDbOptions(bodies=(body,), scripts=default_script_dirs()))
+        return load_db(p)
+
+
+def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
+    """The appearance network ``spec`` names (a path, ``off``, or None for the default file).
+
+    A missing default file is trained first when ``train_if_missing`` (some minutes, cached), else
+    the cue is off with a warning; a named file that cannot be read, or a corrupt default one,
+    raises :class:`tracker_service.cues.appearance.AppearanceError`.
+    """
+    from tracker_service.cues.appearance import default_appearance_path, load_appearance
+
+    if spec == "off":
+        return None
+    p = Path(spec) if spec else default_appearance_path()
+    if spec or p.exists():
+        net = load_appearance(p)
+        if not net.members:
+            log.warning("the appearance network %s is one network; the tracker's defaults are tuned for the "
+                        "ensemble of two that mocap-tracker train-appearance makes (docs/TRACKER.md)", p)
+        return net
+    if not train_if_missing:
+        log.warning("no appearance network at %s: the appearance cue is off (train it once with: "
+                    "mocap-tracker train-appearance)", p)
+        return None
+    log.warning("no appearance network at %s; training it now (some minutes, cached for next time)", p)
+    from tracker_service.app.appearance_training import train_appearance
+
+    train_appearance(p, TrainAppearanceOptions(jobs=os.cpu_count() or 1, scripts=default_script_dirs()))
+    return load_appearance(p)

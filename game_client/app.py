@@ -8,9 +8,22 @@ On one zenoh session it declares
   event) and ``mocap/game/<id>/state`` (``GameState`` at ``state_hz`` of game time).
 
 Every frame is fed to a :class:`~game_client.round.GameRound`; the round's records go to the JSON-lines
-log, and with ``frames_out`` rendered frames are written (PNG, GIF, MP4). Payloads that do not
-decode are counted (``decode_errors``) and logged, never fatal; a tracker restart (sequence or
-time going backwards) is counted and the round continues. Channel subscribers are used (a callback
+log, and with ``frames_out`` rendered frames are written (PNG, GIF, MP4). The message handling is
+:class:`GameClient` (no I/O of its own: it is fed payloads and hands encoded messages to two
+callables), so it is tested in-process.
+
+Input checks
+------------
+Payloads that do not decode are counted (``decode_errors``). Decoded messages are then checked by
+meaning (:mod:`protocol.wire.validate`): a ``BodyInfo`` of implausible scale, a ``PoseFrame`` with
+out-of-range positions, rotations or joints, or one that does not fit the stream's clock
+(:class:`~protocol.wire.validate.StreamClock`: far-future or stale stamps, seq jumps) is counted
+per reason (``invalid_<reason>``) and dropped before it touches the round, so no state outlives
+it. Warnings are rate-limited (one line per reason per 5 s, with the suppressed count). A new
+stream (tracker restart: seq reset or a time jump, confirmed by a few frames) is counted
+(``tracker_restarts``), the recogniser starts over and the game clock continues, so gestures are
+recognised again from the new stream's first frames. Every counter and sequence number that goes
+into a message is clamped to the codec's integer range. Channel subscribers are used (a callback
 subscriber still declared at exit hangs eclipse-zenoh 1.10), everything is undeclared in
 ``finally``, and the loop checks its stop event at least every few milliseconds, so SIGINT/SIGTERM
 end the process well within 2 s. After a round ends a new one starts ``next_round_s`` later.
@@ -22,6 +35,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -33,13 +47,14 @@ from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.game_messages import GameEvent, GameEventKind, GamePhase, GameState, encode_game, pack_projectiles
 from protocol.wire.keys import DEFAULT_TRACKER_ID, body_key, game_event_key, game_state_key, pose_key, validate_id
 from protocol.wire.messages import BodyInfo, PoseFrame
+from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame, clamp_count
 
 from .game import GameConfig, GameRecord, GameSnapshot
 from .gestures import GestureEvent
 from .render import FrameWriter, Renderer, event_line
 from .round import GameRound
 
-__all__ = ["AppOptions", "AppResult", "FrameSink", "run_game"]
+__all__ = ["AppOptions", "AppResult", "FrameSink", "GameClient", "run_game"]
 
 log = logging.getLogger(__name__)
 
@@ -107,31 +122,182 @@ def _state_message(game_id: str, seq: int, snap: GameSnapshot, stream_ts: float,
                    counters: dict[str, int]) -> GameState:
     arr, n = pack_projectiles([(p.kind, p.x, p.y, p.radius, p.width) for p in snap.projectiles])
     return GameState(
-        game_id=game_id, seq=seq, t=snap.t, stream_ts=max(stream_ts, 0.0), tick=snap.tick, phase=GamePhase(snap.phase),
+        game_id=game_id, seq=clamp_count(seq), t=snap.t, stream_ts=max(stream_ts, 0.0), tick=clamp_count(snap.tick),
+        phase=GamePhase(snap.phase),
         round_left_s=snap.round_left_s, player_health=snap.player_health, opponent_health=snap.opponent_health,
         player_x=snap.player_x, player_lane=snap.player_lane,
         player_stance="crouching" if snap.crouching else "standing", opponent_x=snap.opponent_x,
         telegraph=snap.telegraph, projectiles=arr, n_projectiles=n, winner=snap.winner, end_reason=snap.end_reason,
-        frames=frames, counters={k: int(v) for k, v in counters.items()},
+        frames=clamp_count(frames), counters={k: clamp_count(v) for k, v in counters.items()},
     )
 
 
 def _event_messages(game_id: str, seq: int, res_t: float, stream_ts: float, gestures: list[GestureEvent],
                     records: list[GameRecord]) -> list[GameEvent]:
-    out = [GameEvent(game_id=game_id, seq=seq + i, t=res_t, stream_ts=max(stream_ts, 0.0),
+    out = [GameEvent(game_id=game_id, seq=clamp_count(seq + i), t=res_t, stream_ts=max(stream_ts, 0.0),
                      kind=GameEventKind.GESTURE, actor="player", gesture=e.gesture.value,
                      direction=e.direction or "", start_s=e.start_s, end_s=e.end_s,
                      confidence=min(max(e.confidence, 0.0), 1.0), latency_ms=e.latency_ms)
            for i, e in enumerate(gestures)]
     base = seq + len(out)
-    out += [GameEvent(game_id=game_id, seq=base + i, t=r.t, stream_ts=max(stream_ts, 0.0), kind=GameEventKind(r.kind),
-                      actor=r.actor, detail=r.detail, value=r.value) for i, r in enumerate(records)]
+    out += [GameEvent(game_id=game_id, seq=clamp_count(base + i), t=r.t, stream_ts=max(stream_ts, 0.0),
+                      kind=GameEventKind(r.kind), actor=r.actor, detail=r.detail, value=r.value)
+            for i, r in enumerate(records)]
     return out
 
 
 def _write(fh: IO[str] | None, record: dict[str, Any]) -> None:
     if fh is not None:
         fh.write(json.dumps(record, allow_nan=False) + "\n")
+
+
+
+_COUNTERS = ("decode_errors", "bad_frames", "tracker_restarts", "dropped_frames", "publish_errors", "invalid_body",
+             "invalid_pose")
+
+
+class GameClient:
+    """The live client's message handling, without I/O: feed it payloads, it plays the round.
+
+    Parameters
+    ----------
+    game_id : str
+    options : AppOptions
+    game_config : GameConfig
+    publish_event, publish_state : callable
+        Called with each encoded ``GameEvent`` / ``GameState`` (``Publisher.put``); a
+        ``zenoh.ZError`` or ``ProtocolError`` they raise is counted (``publish_errors``).
+    result : AppResult, optional
+        Where frames, events, rounds and counters are kept.
+    log_file : text file, optional
+        JSON-lines log.
+    sink : FrameSink, optional
+    clock : StreamClock, optional
+    """
+
+    def __init__(self, game_id: str, options: AppOptions, game_config: GameConfig,
+                 publish_event: Callable[[bytes], object], publish_state: Callable[[bytes], object], *,
+                 result: AppResult | None = None, log_file: IO[str] | None = None, sink: FrameSink | None = None,
+                 clock: StreamClock | None = None) -> None:
+        self.gid, self.options, self.gconf = game_id, options, game_config
+        self.publish_event, self.publish_state = publish_event, publish_state
+        self.result = result if result is not None else AppResult()
+        for k in _COUNTERS:
+            self.result.counters.setdefault(k, 0)
+        self.c = self.result.counters
+        self.fh, self.sink = log_file, sink
+        self.clock = clock or StreamClock()
+        self.warn = RateLimitedLog(log)
+        self.height: float | None = None
+        self.rnd = GameRound(game_config)
+        self.ev_seq = self.st_seq = 0
+        self.last_seq: int | None = None
+        self.next_state = 0.0
+        self.over_at: float | None = None
+
+    def _count(self, key: str, n: int = 1) -> None:
+        self.c[key] = clamp_count(self.c.get(key, 0) + n)
+
+    def on_body(self, payload: bytes) -> None:
+        """Handle one ``BodyInfo`` payload (the player's height for the next round)."""
+        try:
+            info = decode(payload, BodyInfo)
+        except ProtocolError as exc:
+            self._count("decode_errors")
+            self.warn("decode_body", "bad body message (%d so far): %s", self.c["decode_errors"], exc)
+            return
+        reason = check_body_info(info)
+        if reason is not None:
+            self._count("invalid_body")
+            self._count(f"invalid_{reason}")
+            self.warn(reason, "implausible body message dropped (%s)", reason)
+            return
+        self.height = float(info.measurements.get("height_m", 0.0)) or None
+        if self.rnd.frames == 0 and self.height:
+            self.rnd = GameRound(self.gconf, height_m=self.height)
+
+    def on_pose(self, payload: bytes, now: float | None = None) -> bool:
+        """Handle one ``PoseFrame`` payload at local monotonic time ``now``; True when the run
+        should end (the round is over and ``exit_when_over``)."""
+        try:
+            frame = decode(payload, PoseFrame)
+        except ProtocolError as exc:
+            self._count("decode_errors")
+            self.warn("decode_pose", "dropping undecodable pose message (%d so far): %s", self.c["decode_errors"], exc)
+            return False
+        reason = check_pose_frame(frame)
+        verdict = None if reason is not None else self.clock.observe(frame.seq, frame.capture_ts, now)
+        if verdict is None or verdict.reason is not None:
+            reason = reason if verdict is None else verdict.reason
+            self._count("invalid_pose")
+            self._count(f"invalid_{reason}")
+            self.warn(str(reason), "dropping pose frame %d (%s)", frame.seq, reason)
+            return False
+        if verdict.restart:
+            self._count("tracker_restarts")
+            log.warning("new tracker stream (seq %d, t=%.3f s); the round continues", frame.seq, frame.capture_ts)
+            self.rnd.restart_stream()
+        elif self.last_seq is not None and frame.seq > self.last_seq + 1:
+            self._count("dropped_frames", frame.seq - self.last_seq - 1)
+        self.last_seq = frame.seq
+        return self._play(frame)
+
+    def _play(self, frame: PoseFrame) -> bool:
+        c, result, rnd, gid = self.c, self.result, self.rnd, self.gid
+        try:
+            res = rnd.feed(frame.capture_ts, frame.joints, frame.visibility, frame.confidence)
+        except ValueError as exc:
+            self._count("bad_frames")
+            self.warn("bad_frame", "dropping bad pose frame %d: %s", frame.seq, exc)
+            return False
+        result.frames += 1
+        for rec in res.log:
+            _write(self.fh, rec)
+        msgs = _event_messages(gid, self.ev_seq, res.game_t, frame.capture_ts, res.gestures, res.events)
+        for m in msgs:
+            try:
+                self.publish_event(encode_game(m))
+            except (zenoh.ZError, ProtocolError) as exc:
+                self._count("publish_errors")
+                self.warn("publish_event", "could not publish event %d: %s", m.seq, exc)
+        self.ev_seq += len(msgs)
+        result.events += len(msgs)
+        snap = rnd.game.snapshot()
+        if self.sink is not None:
+            self.sink.note(res.game_t, res.gestures, res.events)
+            self.sink.maybe_draw(snap, rnd.last_joints)
+        if snap.t >= self.next_state or any(r.kind == "round_end" for r in res.events):
+            try:
+                self.publish_state(encode_game(_state_message(gid, self.st_seq, snap, frame.capture_ts, result.frames,
+                                                              {**c, **rnd.recognizer.counters})))
+                self.st_seq += 1
+            except (zenoh.ZError, ProtocolError) as exc:
+                self._count("publish_errors")
+                self.warn("publish_state", "could not publish state: %s", exc)
+            self.next_state = snap.t + 1.0 / self.options.state_hz
+        if rnd.over:
+            if self.over_at is None:
+                self.over_at = snap.t
+                self._summarise()
+                result.rounds += 1
+                log.info("round %d over: %s wins by %s", result.rounds, snap.winner, snap.end_reason)
+                if self.options.exit_when_over:
+                    result.reason = "over"
+                    return True
+            elif snap.t - self.over_at >= self.options.next_round_s:
+                self.rnd, self.over_at, self.next_state = GameRound(self.gconf, height_m=self.height), None, 0.0
+        return False
+
+    def _summarise(self) -> None:
+        summary = self.rnd.summary()
+        summary = {**summary, "round": self.result.rounds, "counters": {**summary["counters"], **self.c}}
+        self.result.summaries.append(summary)
+        _write(self.fh, summary)
+
+    def finish(self) -> None:
+        """Write the summary of a round still running."""
+        if not self.rnd.over and self.rnd.frames:
+            self._summarise()
 
 
 def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
@@ -159,18 +325,9 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
     gid = validate_id(options.game_id)
     tid = validate_id(options.tracker_id, allow_any=True)
     gconf = game_config or GameConfig()
-    result = AppResult(counters=dict.fromkeys(
-        ("decode_errors", "bad_frames", "tracker_restarts", "dropped_frames", "publish_errors"), 0))
-    c = result.counters
+    result = AppResult(counters=dict.fromkeys(_COUNTERS, 0))
     fh = options.log_path.open("w", encoding="utf-8", buffering=1) if options.log_path else None
     sink = FrameSink(options.frames_out, gconf) if options.frames_out else None
-    height: float | None = None
-    rnd = GameRound(gconf)
-    ev_seq = st_seq = 0
-    last_seq: int | None = None
-    last_ts = -1.0
-    next_state = 0.0
-    over_at: float | None = None
     t_start = time.monotonic()
     with open_session(conf) as session:
         entities: list[Any] = []
@@ -180,6 +337,7 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
             ev_pub = session.declare_publisher(game_event_key(gid))
             st_pub = session.declare_publisher(game_state_key(gid))
             entities += [pose_sub, body_sub, ev_pub, st_pub]
+            client = GameClient(gid, options, gconf, ev_pub.put, st_pub.put, result=result, log_file=fh, sink=sink)
             log.info("game %r listening on %s, publishing on %s and %s", gid, pose_key(tid), game_event_key(gid),
                      game_state_key(gid))
             while not stop.is_set():
@@ -191,82 +349,14 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
                     break
                 body_sample = body_sub.try_recv()
                 if body_sample is not None:
-                    try:
-                        info = decode(body_sample.payload.to_bytes(), BodyInfo)
-                        height = float(info.measurements.get("height_m", 0.0)) or None
-                        if rnd.frames == 0 and height:
-                            rnd = GameRound(gconf, height_m=height)
-                    except ProtocolError as exc:
-                        c["decode_errors"] += 1
-                        log.warning("bad body message (%d so far): %s", c["decode_errors"], exc)
+                    client.on_body(bytes(body_sample.payload.to_bytes()))
                 sample = pose_sub.try_recv()
                 if sample is None:
                     stop.wait(options.poll_s)
                     continue
-                try:
-                    frame = decode(sample.payload.to_bytes(), PoseFrame)
-                except ProtocolError as exc:
-                    c["decode_errors"] += 1
-                    if c["decode_errors"] <= 10 or c["decode_errors"] % 100 == 0:
-                        log.warning("dropping undecodable pose message (%d so far): %s", c["decode_errors"], exc)
-                    continue
-                if last_seq is not None:
-                    if frame.seq <= last_seq or frame.capture_ts < last_ts:
-                        c["tracker_restarts"] += 1
-                        log.warning("tracker restarted (seq %d after %d); the round continues", frame.seq, last_seq)
-                    elif frame.seq > last_seq + 1:
-                        c["dropped_frames"] += frame.seq - last_seq - 1
-                last_seq, last_ts = frame.seq, frame.capture_ts
-                try:
-                    res = rnd.feed(frame.capture_ts, frame.joints, frame.visibility, frame.confidence)
-                except ValueError as exc:
-                    c["bad_frames"] += 1
-                    log.warning("dropping bad pose frame %d: %s", frame.seq, exc)
-                    continue
-                result.frames += 1
-                for rec in res.log:
-                    _write(fh, rec)
-                msgs = _event_messages(gid, ev_seq, res.game_t, frame.capture_ts, res.gestures, res.events)
-                for m in msgs:
-                    try:
-                        ev_pub.put(encode_game(m))
-                    except (zenoh.ZError, ProtocolError) as exc:
-                        c["publish_errors"] += 1
-                        log.warning("could not publish event %d: %s", m.seq, exc)
-                ev_seq += len(msgs)
-                result.events += len(msgs)
-                snap = rnd.game.snapshot()
-                if sink is not None:
-                    sink.note(res.game_t, res.gestures, res.events)
-                    sink.maybe_draw(snap, rnd.last_joints)
-                if snap.t >= next_state or any(r.kind == "round_end" for r in res.events):
-                    try:
-                        st_pub.put(encode_game(_state_message(gid, st_seq, snap, frame.capture_ts, result.frames,
-                                                              {**c, **rnd.recognizer.counters})))
-                        st_seq += 1
-                    except (zenoh.ZError, ProtocolError) as exc:
-                        c["publish_errors"] += 1
-                        log.warning("could not publish state: %s", exc)
-                    next_state = snap.t + 1.0 / options.state_hz
-                if rnd.over:
-                    if over_at is None:
-                        over_at = snap.t
-                        summary = rnd.summary()
-                        summary = {**summary, "round": result.rounds, "counters": {**summary["counters"], **c}}
-                        result.summaries.append(summary)
-                        _write(fh, summary)
-                        result.rounds += 1
-                        log.info("round %d over: %s wins by %s", result.rounds, snap.winner, snap.end_reason)
-                        if options.exit_when_over:
-                            result.reason = "over"
-                            break
-                    elif snap.t - over_at >= options.next_round_s:
-                        rnd, over_at, next_state = GameRound(gconf, height_m=height), None, 0.0
-            if not rnd.over and rnd.frames:
-                summary = rnd.summary()
-                summary = {**summary, "round": result.rounds, "counters": {**summary["counters"], **c}}
-                result.summaries.append(summary)
-                _write(fh, summary)
+                if client.on_pose(bytes(sample.payload.to_bytes()), time.monotonic()):
+                    break
+            client.finish()
         finally:
             undeclare_quietly(*reversed(entities))
             if fh is not None:
@@ -274,5 +364,5 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
             if sink is not None:
                 sink.close()
     log.info("game client stopped (%s): %d frames, %d events, counters %s", result.reason, result.frames,
-             result.events, c)
+             result.events, result.counters)
     return result

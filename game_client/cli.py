@@ -26,8 +26,9 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from protocol.formats.load import load_motion
 from protocol.kinematics import fk
-from protocol.motion import Motion, load_motion, resample
+from protocol.motion import Motion, resample
 from protocol.net.cli_args import positive_float as _positive_float
 from protocol.net.cli_args import positive_int as _positive_int
 from protocol.net.session import add_zenoh_args, config_from_args, stop_on_signals

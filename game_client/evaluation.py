@@ -253,9 +253,9 @@ def recording(path: str, fps: float | None = None) -> tuple[NDArray[np.float64],
     ``path`` is relative to :func:`protocol.formats.mocap_data.mocap_root`; the motion is retargeted onto the
     default body by :func:`protocol.motion.load_motion` (optionally resampled to ``fps``).
     """
+    from protocol.formats.load import load_motion
     from protocol.formats.mocap_data import recording_path
     from protocol.kinematics import fk
-    from protocol.motion import load_motion
 
     m = load_motion(recording_path(path), fps=fps)
     return m.times, fk(m.poses, m.body), m.body.height

@@ -122,7 +122,7 @@ class GameRound:
             raise ValueError(f"capture_ts must be finite, got {capture_ts}")
         dt_step = self.game.config.dt
         if self._offset is None:
-            self._offset = capture_ts
+            self._offset = capture_ts - self._game_t - (dt_step if self.frames else 0.0)
         elif capture_ts < self._last_ts or capture_ts - self._last_ts > self.max_gap_s:
             self.counters["stream_restarts" if capture_ts < self._last_ts else "stream_gaps"] += 1
             self._offset = capture_ts - (self._game_t + dt_step)  # continue the game clock
@@ -152,6 +152,15 @@ class GameRound:
             res.log.append(state_record(self.game.snapshot(), capture_ts))
             self._next_state = self.game.t + self.state_interval_s
         return res
+
+    def restart_stream(self) -> None:
+        """A new pose stream begins (tracker restart): the recogniser starts over (keeping the body
+        height) and the game clock continues from where it is with the next frame, whatever its time."""
+        self.recognizer.reset(keep_height=True)
+        if self._offset is not None:
+            self.counters["stream_restarts"] += 1
+        self._offset = None
+        self._last_ts = -math.inf
 
     def summary(self) -> dict[str, Any]:
         """The ``summary`` log record: outcome, healths, counts."""

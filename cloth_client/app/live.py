@@ -14,15 +14,36 @@ time), ``capture_ts`` (the pose's stream time), ``garment``, ``n_vertices``, ``v
 little-endian float32, ``n_vertices x 3``, metres, Y up) and, in the first message and every
 :data:`TOPOLOGY_EVERY`-th, ``triangles`` (bytes: little-endian uint32, ``T x 3``).
 
-Malformed messages are counted and logged (rate-limited), never fatal. SIGINT / SIGTERM end the
-loop within a poll interval and the session is closed cleanly.
+Input checks and bounds
+-----------------------
+Malformed messages are counted and logged (rate-limited), never fatal. Decoded messages are then
+checked by meaning (:mod:`protocol.wire.validate`): a ``BodyInfo`` of implausible scale (a 1.7 mm
+or a 170 m body) or whose garment cannot be built or simulated within the substep bound is
+dropped and the current body kept; a ``PoseFrame`` with out-of-range positions, rotations or
+joints, or that does not fit the stream's clock (far-future or stale stamps, seq jumps;
+:class:`~protocol.wire.validate.StreamClock`) is dropped before it reaches the solver. Each
+drop is counted per reason in :attr:`LiveResult.counters` (``invalid_<reason>``) and logged at
+most once per reason per 5 s.
+
+The solver does not see the stream's time: :class:`ClothClient` keeps its own simulation clock,
+advanced by each accepted frame's time step. A step longer than the driver's ``max_gap_s``, and
+the first frame of a new stream (a tracker restart, its time back at 0), advance it by just over
+``max_gap_s``, which the driver bridges with a smooth reset (a fixed ``reset_blend_s`` of
+simulation), so a restart is followed from the new stream's first confirmed frames and no frame
+asks for more than :data:`MAX_SUBSTEPS_PER_FRAME` substeps (a garment that would need more is
+refused). Each simulated frame's wall time is measured against :data:`STEP_BUDGET_S`; after
+:data:`OVER_BUDGET_LIMIT` consecutive overruns the cloth is switched off (``sim_disabled``) until
+another body arrives, so the loop keeps polling and SIGINT / SIGTERM end it within a poll
+interval or one bounded step; the session is closed cleanly.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -39,14 +60,23 @@ from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.keys import body_key, cloth_mesh_key, pose_key
 from protocol.wire.messages import BodyInfo, PoseFrame
+from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame
 
-__all__ = ["TOPOLOGY_EVERY", "LiveOptions", "LiveResult", "mesh_message", "run_live"]
+__all__ = ["MAX_SUBSTEPS_PER_FRAME", "OVER_BUDGET_LIMIT", "STEP_BUDGET_S", "TOPOLOGY_EVERY", "ClothClient",
+           "LiveOptions", "LiveResult", "mesh_message", "run_live"]
 
 log = logging.getLogger(__name__)
 #: The mesh message carries the triangles in its first message and then every this many messages.
 TOPOLOGY_EVERY: Final[int] = 30
 _POLL_S: Final[float] = 0.002
 _BODY_RETRY_S: Final[float] = 1.0
+#: Most substeps one received frame may cost (a garment whose stable substep needs more for the
+#: longest bridged step is refused).
+MAX_SUBSTEPS_PER_FRAME: Final[int] = 256
+#: Wall-clock budget of one simulated frame, seconds.
+STEP_BUDGET_S: Final[float] = 2.0
+#: Consecutive frames over budget after which the cloth is switched off until another body arrives.
+OVER_BUDGET_LIMIT: Final[int] = 3
 
 
 @dataclass(frozen=True)
@@ -103,43 +133,6 @@ def mesh_message(cloth_id: str, seq: int, capture_ts: float, garment: Garment, x
     return bytes(msgpack.packb(msg, use_bin_type=True))
 
 
-class _Warn:
-    """Log a recurring warning at most once per second (with a count)."""
-
-    def __init__(self) -> None:
-        self.last = 0.0
-        self.pending = 0
-
-    def __call__(self, text: str, *args: object) -> None:
-        self.pending += 1
-        now = time.monotonic()
-        if now - self.last >= 1.0:
-            log.warning(text + " (%d since last report)", *args, self.pending)
-            self.last, self.pending = now, 0
-
-
-def _payload(sample: zenoh.Sample) -> bytes:
-    return bytes(sample.payload.to_bytes())
-
-
-def _decode_body(data: bytes, result: LiveResult, warn: _Warn) -> BodyInfo | None:
-    try:
-        return decode(data, BodyInfo)
-    except ProtocolError as exc:
-        result.malformed += 1
-        warn("malformed BodyInfo ignored: %s", exc)
-        return None
-
-
-def _query_body(session: zenoh.Session, key: str, result: LiveResult, warn: _Warn) -> BodyInfo | None:
-    for reply in session.get(key, timeout=0.5):
-        if reply.ok is not None:
-            info = _decode_body(_payload(reply.ok), result, warn)
-            if info is not None:
-                return info
-    return None
-
-
 class _Outputs:
     """Renderer, frame/video writers and mesh publisher of one garment (rebuilt with the body)."""
 
@@ -177,6 +170,202 @@ class _Outputs:
             self.renderer.close()
 
 
+def _payload(sample: zenoh.Sample) -> bytes:
+    return bytes(sample.payload.to_bytes())
+
+
+DriverFactory = Callable[[BodyInfo, LiveOptions], ClothDriver]
+
+
+def _make_driver(info: BodyInfo, opts: LiveOptions) -> ClothDriver:
+    body = body_of(info)
+    return ClothDriver(body, make_garment(opts.garment, body, opts.particles), opts.params)
+
+
+def substep_bound(driver: ClothDriver) -> int:
+    """Most substeps one frame can cost with ``driver``: its longest bridged step (``max_gap_s``,
+    or a reset's ``reset_blend_s``) over its smallest substep."""
+    model = getattr(driver, "model", None)
+    if model is None:
+        return 1
+    cfg = driver.config
+    longest = max(cfg.continuity.max_gap_s, cfg.reset_blend_s, cfg.dress_s / max(1, round(cfg.dress_s / cfg.frame_dt)))
+    sub = min(model.params.max_substep_dt, model.stable_dt)
+    if not (math.isfinite(sub) and sub > 0.0):
+        return 2**31
+    return max(math.ceil(longest / sub - 1e-9), int(model.params.max_substeps), 1)
+
+
+class ClothClient:
+    """The live cloth client's message handling, without I/O: feed it payloads, it drives the cloth.
+
+    Parameters
+    ----------
+    opts : LiveOptions
+    result : LiveResult, optional
+    publisher : object with ``put(bytes)``, optional
+        Mesh publisher.
+    driver_factory : callable, optional
+        ``(BodyInfo, LiveOptions) -> ClothDriver`` (default: the options' garment on the body).
+    clock : StreamClock, optional
+    """
+
+    def __init__(self, opts: LiveOptions, result: LiveResult | None = None, publisher: Any = None,
+                 driver_factory: DriverFactory | None = None, clock: StreamClock | None = None) -> None:
+        self.opts = opts
+        self.result = result if result is not None else LiveResult()
+        self.publisher = publisher
+        self.factory = driver_factory or _make_driver
+        self.clock = clock or StreamClock()
+        self.warn = RateLimitedLog(log)
+        self.info: BodyInfo | None = None
+        self.driver: ClothDriver | None = None
+        self.outputs: _Outputs | None = None
+        self.sim_t: float | None = None  # the solver's clock (not the stream's)
+        self.last_ts = 0.0
+        self.over_budget = 0
+
+    def _count(self, key: str, n: int = 1) -> None:
+        self.result.counters[key] = self.result.counters.get(key, 0) + n
+
+    def _drop(self, reason: str, what: str) -> None:
+        self._count(f"invalid_{reason}")
+        self.warn(reason, "%s dropped (%s)", what, reason)
+
+    def decode_body(self, data: bytes) -> BodyInfo | None:
+        """A decoded, plausible ``BodyInfo`` or None (counted and logged)."""
+        try:
+            info = decode(data, BodyInfo)
+        except ProtocolError as exc:
+            self.result.malformed += 1
+            self.warn("decode_body", "malformed BodyInfo ignored: %s", exc)
+            return None
+        reason = check_body_info(info)
+        if reason is not None:
+            self._drop(reason, "implausible BodyInfo")
+            return None
+        return info
+
+    def on_body(self, data: bytes) -> bool:
+        """Handle one ``BodyInfo`` payload; True if the garment was (re)built on it."""
+        info = self.decode_body(data)
+        return info is not None and self.set_body(info)
+
+    def set_body(self, info: BodyInfo) -> bool:
+        """Dress a new garment on ``info`` (already checked) unless it is the current body; True if
+        done. A garment that cannot be built, or would need more than ``MAX_SUBSTEPS_PER_FRAME``
+        substeps a frame, is refused and the current one kept."""
+        if info == self.info and self.driver is not None:
+            return False
+        try:
+            driver = self.factory(info, self.opts)
+        except (ValueError, ArithmeticError, FloatingPointError) as exc:
+            self._drop("garment_failed", f"BodyInfo {info.body_model!r} ({exc})")
+            return False
+        n = substep_bound(driver)
+        if n > MAX_SUBSTEPS_PER_FRAME:
+            self._drop("garment_substeps", f"BodyInfo {info.body_model!r} ({n} substeps a frame)")
+            return False
+        if self.outputs is not None:
+            self.outputs.close()
+            self.outputs = None
+        self.info, self.driver, self.over_budget = info, driver, 0
+        self.sim_t = None
+        self.outputs = _Outputs(self.opts, driver, self.publisher)
+        self.result.body_updates += 1
+        log.info("body %r received: %d-particle %s", info.body_model, driver.garment.n_particles, self.opts.garment)
+        return True
+
+    def accept(self, data: bytes, now: float | None = None) -> tuple[PoseFrame, float] | None:
+        """Decode and check one ``PoseFrame`` payload against the stream clock; ``(frame, sim_t)``
+        with the frame's time on the solver's clock, or None (counted and logged)."""
+        try:
+            frame = decode(data, PoseFrame)
+        except ProtocolError as exc:
+            self.result.malformed += 1
+            self.warn("decode_pose", "malformed PoseFrame ignored: %s", exc)
+            return None
+        reason = check_pose_frame(frame)
+        if reason is not None:
+            self._drop(reason, f"PoseFrame {frame.seq}")
+            return None
+        verdict = self.clock.observe(frame.seq, frame.capture_ts, now)
+        if verdict.reason is not None:
+            self._drop(verdict.reason, f"PoseFrame {frame.seq}")
+            return None
+        ts = float(frame.capture_ts)
+        if verdict.restart:
+            self._count("tracker_restarts")
+            log.warning("new tracker stream (seq %d, t=%.3f s): the cloth follows it", frame.seq, ts)
+        if self.sim_t is None:
+            self.sim_t = 0.0
+        else:
+            dt = ts - self.last_ts
+            gap = self.driver.config.continuity.max_gap_s if self.driver is not None else 0.5
+            self.sim_t += 1.01 * gap + 1e-3 if verdict.new_stream or dt > gap else max(dt, 0.0)
+        self.last_ts = ts
+        return frame, self.sim_t
+
+    def on_poses(self, payloads: list[bytes], now: float | None = None) -> bool:
+        """Handle the pose payloads received since the last call (oldest first): each goes through
+        the checks and the clock, the newest accepted one is simulated. True if a frame was simulated."""
+        newest: tuple[PoseFrame, float] | None = None
+        n_ok = 0
+        for data in payloads:
+            got = self.accept(data, now)
+            if got is not None:
+                newest, n_ok = got, n_ok + 1
+        self.result.skipped_behind += max(n_ok - 1, 0)
+        if newest is None or self.driver is None or self.outputs is None:
+            return False  # nothing usable, or no body yet
+        return self.simulate(*newest)
+
+    def simulate(self, frame: PoseFrame, sim_t: float) -> bool:
+        """Advance the cloth to ``frame`` at ``sim_t`` (solver clock); True if a step was taken."""
+        driver, outputs, result = self.driver, self.outputs, self.result
+        assert driver is not None and outputs is not None
+        t0 = time.perf_counter()
+        stats = driver.feed(np.asarray(frame.pose, dtype=np.float64), sim_t)
+        wall = time.perf_counter() - t0
+        result.sim_wall_s += wall
+        if wall > STEP_BUDGET_S:
+            self.over_budget += 1
+            self._count("sim_over_budget")
+            self.warn("sim_over_budget", "cloth step took %.2f s (budget %.2f s)", wall, STEP_BUDGET_S)
+            if self.over_budget >= OVER_BUDGET_LIMIT:
+                self._count("sim_disabled")
+                log.error("cloth switched off: %d steps in a row over the %.1f s budget; waiting for another body",
+                          self.over_budget, STEP_BUDGET_S)
+                outputs.close()
+                self.driver = self.outputs = None
+                self.info = None
+        else:
+            self.over_budget = 0
+        if stats is None:
+            return False
+        result.frames += 1
+        result.resets += int(stats.reset)
+        result.max_strain = max(result.max_strain, stats.max_strain)
+        result.max_penetration_mm = max(result.max_penetration_mm, 1000.0 * stats.max_penetration)
+        if self.outputs is not None:
+            self.outputs.emit(frame, result)
+        return True
+
+    def close(self) -> None:
+        if self.outputs is not None:
+            self.outputs.close()
+            self.outputs = None
+
+
+def _query_body(session: zenoh.Session, key: str, client: ClothClient) -> BodyInfo | None:
+    for reply in session.get(key, timeout=0.5):
+        if reply.ok is not None:
+            info = client.decode_body(_payload(reply.ok))
+            if info is not None:
+                return info
+    return None
+
+
 def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> LiveResult:
     """Run the live client until ``stop`` is set, ``max_frames`` poses were simulated or ``duration``
     seconds passed.
@@ -186,7 +375,7 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
     conf : zenoh.Config
     opts : LiveOptions
     stop : threading.Event
-        Checked every poll (a few milliseconds).
+        Checked every poll (a few milliseconds) and after every (bounded) simulated frame.
 
     Returns
     -------
@@ -198,11 +387,8 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
         If the zenoh session cannot be opened.
     """
     result = LiveResult()
-    warn = _Warn()
     t_start = time.monotonic()
-    driver: ClothDriver | None = None
-    outputs: _Outputs | None = None
-    info: BodyInfo | None = None
+    client: ClothClient | None = None
     with open_session(conf) as session:
         entities: list[Any] = []
         try:
@@ -212,6 +398,7 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
             publisher = session.declare_publisher(cloth_mesh_key(opts.tracker_id)) if opts.publish_mesh else None
             if publisher is not None:
                 entities.append(publisher)
+            client = ClothClient(opts, result, publisher)
             log.info("cloth client: %s on tracker %r (%s)", opts.garment, opts.tracker_id, pose_key(opts.tracker_id))
             last_query = -np.inf
             while not stop.is_set():
@@ -224,50 +411,24 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
                     break
                 new_info = None
                 while (s := body_sub.try_recv()) is not None:
-                    new_info = _decode_body(_payload(s), result, warn) or new_info
-                if new_info is None and info is None and now - last_query >= _BODY_RETRY_S:
+                    new_info = client.decode_body(_payload(s)) or new_info
+                if new_info is None and client.driver is None and now - last_query >= _BODY_RETRY_S:
                     last_query = now
-                    new_info = _query_body(session, body_key(opts.tracker_id), result, warn)
-                if new_info is not None and new_info != info:
-                    info = new_info
-                    if outputs is not None:
-                        outputs.close()
-                    body = body_of(info)
-                    driver = ClothDriver(body, make_garment(opts.garment, body, opts.particles), opts.params)
-                    outputs = _Outputs(opts, driver, publisher)
-                    result.body_updates += 1
-                    log.info("body %r received: %d-particle %s", info.body_model, driver.garment.n_particles,
-                             opts.garment)
-                samples = []
+                    new_info = _query_body(session, body_key(opts.tracker_id), client)
+                if new_info is not None:
+                    client.set_body(new_info)
+                payloads = []
                 while (s := pose_sub.try_recv()) is not None:
-                    samples.append(s)
-                if not samples:
+                    payloads.append(_payload(s))
+                if not payloads:
                     stop.wait(_POLL_S)
                     continue
-                result.skipped_behind += len(samples) - 1
-                try:
-                    frame = decode(_payload(samples[-1]), PoseFrame)
-                except ProtocolError as exc:
-                    result.malformed += 1
-                    warn("malformed PoseFrame ignored: %s", exc)
-                    continue
-                if driver is None or outputs is None:
-                    continue  # no body yet
-                t0 = time.perf_counter()
-                stats = driver.feed(np.asarray(frame.pose, dtype=np.float64), float(frame.capture_ts))
-                result.sim_wall_s += time.perf_counter() - t0
-                if stats is None:
-                    continue
-                result.frames += 1
-                result.resets += int(stats.reset)
-                result.max_strain = max(result.max_strain, stats.max_strain)
-                result.max_penetration_mm = max(result.max_penetration_mm, 1000.0 * stats.max_penetration)
-                outputs.emit(frame, result)
+                client.on_poses(payloads, time.monotonic())
             if not result.reason:
                 result.reason = "signal"
         finally:
-            if outputs is not None:
-                outputs.close()
+            if client is not None:
+                client.close()
             undeclare_quietly(*reversed(entities))
     result.wall_s = time.monotonic() - t_start
     log.info("cloth client stopped (%s): %d frames, %d rendered, %d published, %d malformed", result.reason,

@@ -116,14 +116,21 @@ def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
     if f.ndim != 4 or f.shape[-1] != 3 or f.shape[0] < 2:
         raise ValueError(f"need (N >= 2, H, W, 3) frames, got {f.shape}")
     c, b = _chroma_bright(f)
-    c_std = np.maximum(c.std(axis=0), chroma_std_floor)
-    b_std = np.maximum(b.std(axis=0), bright_std_floor)
+    return _model(c.mean(axis=0), c.std(axis=0), b.mean(axis=0), b.std(axis=0), int(f.shape[0]), chroma_std_floor,
+                  bright_std_floor)
+
+
+def _model(c_mean: NDArray[np.floating], c_std: NDArray[np.floating], b_mean: NDArray[np.floating],
+           b_std: NDArray[np.floating], n: int, chroma_std_floor: float, bright_std_floor: float) -> BackgroundModel:
+    """The model from per-pixel centres and spreads of chromaticity and brightness (spreads floored)."""
+    c_std = np.maximum(c_std, chroma_std_floor)
+    b_std = np.maximum(b_std, bright_std_floor)
     return BackgroundModel(
-        chroma_mean=c.mean(axis=0).astype(np.float32),
+        chroma_mean=np.asarray(c_mean).astype(np.float32),
         chroma_inv_var=(1.0 / c_std**2).astype(np.float32),
-        bright_mean=b.mean(axis=0).astype(np.float32),
+        bright_mean=np.asarray(b_mean).astype(np.float32),
         bright_std=b_std.astype(np.float32),
-        n_frames=int(f.shape[0]),
+        n_frames=n,
     )
 
 
@@ -151,15 +158,8 @@ def learn_background_robust(frames: NDArray[np.uint8], chroma_std_floor: float =
         raise ValueError(f"need (N >= 3, H, W, 3) frames, got {f.shape}")
     c, b = _chroma_bright(f)
     c_med, b_med = np.median(c, axis=0), np.median(b, axis=0)
-    c_std = np.maximum(1.4826 * np.median(np.abs(c - c_med), axis=0), chroma_std_floor)
-    b_std = np.maximum(1.4826 * np.median(np.abs(b - b_med), axis=0), bright_std_floor)
-    return BackgroundModel(
-        chroma_mean=c_med.astype(np.float32),
-        chroma_inv_var=(1.0 / c_std**2).astype(np.float32),
-        bright_mean=b_med.astype(np.float32),
-        bright_std=b_std.astype(np.float32),
-        n_frames=int(f.shape[0]),
-    )
+    c_mad, b_mad = np.median(np.abs(c - c_med), axis=0), np.median(np.abs(b - b_med), axis=0)
+    return _model(c_med, 1.4826 * c_mad, b_med, 1.4826 * b_mad, int(f.shape[0]), chroma_std_floor, bright_std_floor)
 
 
 def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],

@@ -135,3 +135,27 @@ def test_foreground_kernel_matches_numpy_reference(rng: np.random.Generator, gai
         assert fast.dtype == bool and fast.shape == ref.shape
         assert 0.01 < ref.mean() < 0.99  # both classes present: the comparison means something
         np.testing.assert_array_equal(fast, ref)
+
+
+def test_the_robust_model_learns_the_room_behind_a_moving_person(rng: np.random.Generator) -> None:
+    """Frames that all show a person (a block moving across the room): the median-based model learns
+    the room behind them, so the empty room reads empty and the person is seen wherever they stand;
+    the mean-based model, its spread inflated where the person passed, misses them there."""
+    from tracker_service.silhouette.background import learn_background, learn_background_robust, subtract
+
+    room = rng.integers(40, 200, (60, 80, 3), dtype=np.uint8)
+
+    def shot(x0: int | None) -> np.ndarray:
+        f = room.copy()
+        if x0 is not None:
+            f[10:55, x0:x0 + 10] = (30, 140, 220)  # the person
+        return np.clip(f.astype(np.int16) + rng.integers(-2, 3, f.shape), 0, 255).astype(np.uint8)
+
+    frames = np.stack([shot(4 + 8 * k) for k in range(9)])  # somewhere else in every frame
+    robust, plain = learn_background_robust(frames), learn_background(frames)
+    assert subtract(robust, shot(None)).mean() < 0.005
+    person = np.zeros((60, 80), bool)
+    person[10:55, 36:46] = True
+    seen_robust = subtract(robust, shot(36))[person].mean()
+    seen_plain = subtract(plain, shot(36))[person].mean()
+    assert seen_robust > 0.95 and seen_plain < 0.7  # (measured: 0.99 and 0.55)

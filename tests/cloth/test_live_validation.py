@@ -1,0 +1,215 @@
+"""The live cloth client's message handling against hostile or odd input, in-process (no Zenoh).
+
+``ClothClient`` is fed encoded payloads directly with a synthetic local clock. Most tests use a
+stand-in driver that records what reaches the solver (fast, no JIT); the last one runs the real
+solver. Cases measured on loopback before the fix: one ``PoseFrame`` with capture_ts = 1e12
+stopped the simulation for good; a ``BodyInfo`` at 1/1000 scale pegged a core; one at 100x kept a
+170 m giant; one huge rotation gave strain 5.66; after a tracker restart the client resumed only
+after 27-33 s; body warnings were not rate-limited.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+import cloth_client.app.live as live
+from cloth_client.app.live import MAX_SUBSTEPS_PER_FRAME, ClothClient, LiveOptions, substep_bound
+from cloth_client.solver.driver import DriverConfig, FrameStats
+from protocol.kinematics import fk
+from protocol.skeleton import default_body, standing_pose
+from protocol.wire.codec import encode
+from protocol.wire.messages import BodyInfo, PoseFrame, body_info_from_body
+
+BODY = default_body()
+INFO = body_info_from_body(BODY, "t")
+FPS = 30.0
+
+
+class FakeDriver:
+    """Records every (pose, t) the solver would get."""
+
+    def __init__(self, info: BodyInfo, stable_dt: float = 1 / 200) -> None:
+        self.info = info
+        self.config = DriverConfig()
+        self.model = SimpleNamespace(stable_dt=stable_dt, params=SimpleNamespace(max_substep_dt=1 / 240,
+                                                                                 max_substeps=48))
+        self.garment = SimpleNamespace(n_particles=4, kind="cape")
+        self.state = SimpleNamespace(x=np.zeros((4, 3)))
+        self.fed: list[tuple[np.ndarray, float]] = []
+
+    def feed(self, pose: np.ndarray, t: float) -> FrameStats | None:
+        if self.fed and not t > self.fed[-1][1]:
+            return None
+        self.fed.append((pose, t))
+        return FrameStats(t, 8, 0.0, 0.0, 0, 0.01, False)
+
+
+def _client(**kw: Any) -> tuple[ClothClient, list[FakeDriver]]:
+    made: list[FakeDriver] = []
+
+    def factory(info: BodyInfo, opts: LiveOptions) -> Any:
+        d = FakeDriver(info, **kw)
+        made.append(d)
+        return d
+
+    return ClothClient(LiveOptions(tracker_id="t"), driver_factory=factory), made
+
+
+def _scaled(s: float) -> BodyInfo:
+    return dataclasses.replace(INFO, offsets=INFO.offsets * s, capsule_radii=INFO.capsule_radii * s,
+                               measurements={**INFO.measurements, "height_m": BODY.height * s})
+
+
+def _frame(seq: int, ts: float, pose: np.ndarray | None = None) -> PoseFrame:
+    p = standing_pose(BODY) if pose is None else pose
+    p = p.copy()
+    p[0] = 0.3 * np.sin(ts)  # a slow sway
+    return PoseFrame("t", seq, ts, 0.0, p, fk(p, BODY), np.ones(15), 1.0, "replay", BODY.name)
+
+
+def _stream(client: ClothClient, n: int, seq0: int = 0, t0: float = 0.0, now0: float = 0.0) -> float:
+    now = now0
+    for k in range(n):
+        now = now0 + k / FPS
+        client.on_poses([encode(_frame(seq0 + k, t0 + k / FPS))], now)
+    return now
+
+
+def _solver_times(d: FakeDriver) -> np.ndarray:
+    return np.array([t for _, t in d.fed])
+
+
+def test_far_future_stamp_does_not_stop_the_simulation() -> None:
+    client, made = _client()
+    assert client.on_body(encode(INFO))
+    now = _stream(client, 60)
+    client.on_poses([encode(_frame(60, 1e12))], now + 0.01)
+    _stream(client, 60, seq0=61, t0=61 / FPS, now0=now + 1 / FPS)
+    d, = made
+    assert len(d.fed) == 120  # every real frame simulated, the bogus one never
+    assert np.all(np.diff(_solver_times(d)) > 0) and _solver_times(d).max() < 10
+    assert client.result.counters["invalid_ts_future"] == 1
+
+
+def test_tiny_and_giant_bodies_are_refused_and_the_body_kept() -> None:
+    client, made = _client()
+    assert client.on_body(encode(INFO))
+    t0 = time.monotonic()
+    assert not client.on_body(encode(_scaled(1e-3)))
+    assert not client.on_body(encode(_scaled(100.0)))
+    assert time.monotonic() - t0 < 1.0
+    assert len(made) == 1 and client.info == INFO
+    assert client.result.counters["invalid_body_stature"] == 2
+    _stream(client, 30)
+    assert len(made[0].fed) == 30
+
+
+def test_huge_rotation_never_reaches_the_solver() -> None:
+    client, made = _client()
+    client.on_body(encode(INFO))
+    now = _stream(client, 30)
+    p = standing_pose(BODY)
+    p[3:6] = (0.0, 1e4, 0.0)
+    bad = dataclasses.replace(_frame(30, 30 / FPS), pose=p)
+    client.on_poses([encode(bad)], now + 0.01)
+    d = made[0]
+    assert len(d.fed) == 30
+    assert all(np.linalg.norm(pose[3:].reshape(-1, 3), axis=1).max() < 7 for pose, _ in d.fed)
+    assert client.result.counters["invalid_pose_rotation"] == 1
+
+
+def test_tracker_restart_followed_within_two_seconds() -> None:
+    client, made = _client()
+    client.on_body(encode(INFO))
+    now = _stream(client, 900)  # 30 s, then the tracker restarts: seq and time from 0 again
+    d = made[0]
+    n_before = len(d.fed)
+    restart_at = now + 0.5
+    resumed = None
+    for k in range(120):
+        client.on_poses([encode(_frame(k, k / FPS))], restart_at + k / FPS)
+        if resumed is None and len(d.fed) > n_before:
+            resumed = k / FPS
+    assert resumed is not None and resumed <= 2.0
+    assert client.result.counters["tracker_restarts"] == 1
+    times = _solver_times(d)
+    assert np.all(np.diff(times) > 0)
+    assert np.diff(times).max() <= 1.01 * d.config.continuity.max_gap_s + 1e-3 + 1e-9
+
+
+def test_solver_steps_are_bounded_even_across_a_long_pause() -> None:
+    client, made = _client()
+    client.on_body(encode(INFO))
+    now = _stream(client, 30)
+    _stream(client, 30, seq0=30, t0=30 / FPS + 20.0, now0=now + 20.0)  # the tracker paused for 20 s
+    d = made[0]
+    steps = np.diff(_solver_times(d))
+    assert len(d.fed) == 60 and steps.max() <= 0.52
+    assert substep_bound(d) <= MAX_SUBSTEPS_PER_FRAME  # type: ignore[arg-type]
+
+
+def test_garment_needing_too_many_substeps_or_failing_is_refused() -> None:
+    client, _ = _client(stable_dt=1e-6)
+    assert not client.on_body(encode(INFO))
+    assert client.driver is None and client.result.counters["invalid_garment_substeps"] == 1
+
+    def broken(info: BodyInfo, opts: LiveOptions) -> Any:
+        raise ValueError("cannot convert float NaN to integer")
+
+    client2 = ClothClient(LiveOptions(tracker_id="t"), driver_factory=broken)
+    assert not client2.on_body(encode(INFO))
+    assert client2.result.counters["invalid_garment_failed"] == 1
+
+
+def test_over_budget_steps_switch_the_cloth_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(live, "STEP_BUDGET_S", -1.0)  # every step is over budget
+    client, _ = _client()
+    client.on_body(encode(INFO))
+    _stream(client, 10)
+    assert client.driver is None
+    assert client.result.counters["sim_disabled"] == 1
+    assert client.result.counters["sim_over_budget"] == live.OVER_BUDGET_LIMIT
+    assert client.on_body(encode(INFO))  # another body message brings it back
+
+
+def test_body_warnings_are_rate_limited(caplog: pytest.LogCaptureFixture) -> None:
+    client, _ = _client()
+    client.on_body(encode(INFO))
+    t = [0.0]
+    client.warn.clock = lambda: t[0]
+    with caplog.at_level(logging.WARNING, logger="cloth_client.app.live"):
+        for k in range(1845):
+            t[0] = k * 60.0 / 1845
+            client.on_body(encode(_scaled(100.0 if k % 2 else 1e-3)))
+    assert len(caplog.records) <= 60 / 5 + 2
+    assert client.result.counters["invalid_body_stature"] == 1845
+
+
+@pytest.mark.slow
+def test_real_solver_survives_the_hostile_messages() -> None:
+    """The real solver (400-particle cape): a far-future stamp, a huge rotation, a 100x body and a
+    restart in one stream; the cloth keeps simulating with a sane strain, each step bounded."""
+    client = ClothClient(LiveOptions(tracker_id="t", particles=400))
+    assert client.on_body(encode(INFO))
+    now = _stream(client, 45)
+    p = standing_pose(BODY)
+    p[3:6] = (0.0, 1e4, 0.0)
+    client.on_poses([encode(dataclasses.replace(_frame(45, 1.5), pose=p)), encode(_frame(46, 1e12))], now + 0.01)
+    assert not client.on_body(encode(_scaled(100.0)))
+    frames = client.result.frames
+    now = _stream(client, 30, seq0=47, t0=47 / FPS, now0=now + 2 / FPS)
+    assert client.result.frames >= frames + 29
+    t0 = time.monotonic()
+    _stream(client, 30, now0=now + 0.5)  # a restart
+    assert client.result.counters["tracker_restarts"] == 1
+    assert client.result.frames >= frames + 29 + 25
+    assert time.monotonic() - t0 < 60
+    assert client.result.max_strain < 0.10
+    client.close()

@@ -104,7 +104,7 @@ class Tracker:
                          publish_ts=time.time(), pose=res.pose.astype(np.float32),
                          joints=res.joints.astype(np.float32),
                          visibility=np.clip(res.visibility, 0, 1).astype(np.float32),
-                         confidence=float(np.clip(res.confidence, 0, 1)), estimator="tree",
+                         confidence=float(np.clip(res.confidence, 0, 1)), estimator=self.config.estimator,
                          body_model=self.state.body.name)
 
     def synthetic_clip(self, seconds: float = 3.0, seed: int = 1, motion: str | Path | None = None,

@@ -11,6 +11,7 @@ Subcommands
 ``run``               the tracker daemon: frames -> poses over Zenoh.
 ``eval``              track a motion rendered as synthetic video; print the errors as JSON.
 ``render``            render the synthetic camera view of a motion to images or a video.
+``record``            subscribe to a tracker's poses and write the session as BVH, JSON lines and CSV.
 
 Exit status: 0 on success (including a clean stop by Ctrl-C / SIGTERM), 1 when the command failed
 (one line on stderr says why), 2 for bad command-line arguments.
@@ -28,7 +29,7 @@ import sys
 from collections.abc import Callable
 
 from protocol.wire.codec import ProtocolError
-from tracker_service.app.commands import Command, build_db, demo, render, replay, run, train_appearance
+from tracker_service.app.commands import Command, build_db, demo, record, render, replay, run, train_appearance
 from tracker_service.app.commands import eval as eval_command
 from tracker_service.app.commands.common import UsageError
 
@@ -36,7 +37,7 @@ __all__ = ["COMMANDS", "PROG", "build_parser", "main", "version"]
 
 PROG = "mocap-tracker"
 #: The commands in the order ``--help`` lists them.
-COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render)
+COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render, record)
 _BY_NAME: dict[str, Command] = {c.NAME: c for c in COMMANDS}
 
 
@@ -76,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else logging.INFO if verbose < 2 else logging.DEBUG
     logging.basicConfig(level=level, format=f"{PROG}: %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    # PyOpenGL says at INFO whether its OpenGL_accelerate module loaded (OpenGL.acceleratesupport): only -vv shows it
+    logging.getLogger("OpenGL").setLevel(logging.WARNING if verbose < 2 else logging.DEBUG)
 
 
 def main(argv: list[str] | None = None, *, default_sigterm: Callable[[], None] | None = None) -> int:

@@ -20,6 +20,7 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,7 +38,11 @@ from tracker_service.pipeline.warmup import warm_up
 from tracker_service.sources.frame_source import FrameSource
 from tracker_service.templates.database import LoadedDatabase
 
-__all__ = ["RunOptions", "run_from_options", "run_tracker"]
+__all__ = ["FrameHook", "RunOptions", "run_from_options", "run_tracker"]
+
+#: A per-frame hook of the daemon: ``hook(timestamp, frame, result)`` after every frame the source
+#: gave (``result`` None: a frame the pipeline could not use), e.g. the overlay video of ``--video``.
+FrameHook = Callable[[float, Any, FrameResult | None], None]
 
 log = logging.getLogger(__name__)
 
@@ -67,12 +72,12 @@ class _Counters:
         return (len(self.times) - 1) / span if span > 0 else 0.0
 
 
-def _pose_frame(tid: str, seq: int, ts: float, res: FrameResult, body_name: str) -> PoseFrame:
+def _pose_frame(tid: str, seq: int, ts: float, res: FrameResult, body_name: str, estimator: str) -> PoseFrame:
     assert res.pose is not None and res.joints is not None
     return PoseFrame(tracker_id=tid, seq=seq, capture_ts=float(ts), publish_ts=time.time(),
                      pose=res.pose.astype(np.float32), joints=res.joints.astype(np.float32),
                      visibility=np.clip(res.visibility, 0, 1).astype(np.float32),
-                     confidence=float(np.clip(res.confidence, 0, 1)), estimator="tree", body_model=body_name)
+                     confidence=float(np.clip(res.confidence, 0, 1)), estimator=estimator, body_model=body_name)
 
 
 class _Run:
@@ -102,7 +107,7 @@ class _Run:
         return encode(TrackerStatus(
             tracker_id=self.tid, state=st, ts=time.time(), uptime_s=time.monotonic() - self.t_start, fps=c.fps(),
             frames=c.values["published"], counters=dict(c.values), stage_ms=c.stage_means(),
-            estimator="tree", body_model=self.state.body.name))
+            estimator=self.config.estimator, body_model=self.state.body.name))
 
     def step(self, ts: float, frame: Any, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher) -> FrameResult | None:
         """Process one frame and publish its pose (and the body when it changed); None for a frame
@@ -120,13 +125,16 @@ class _Run:
         self.counters.times.append(time.monotonic())
         if res.reinitialised:
             values["reinitialisations"] += 1
+        if res.rejected is not None:  # a pose without grounds: withheld
+            values["withheld"] = values.get("withheld", 0) + 1
         if res.body_changed:
             values["body_changes"] += 1
             self.body_bytes = encode(body_info_from_body(self.state.body, self.tid))
             body_pub.put(self.body_bytes)
         if res.pose is not None:
             try:
-                pose_pub.put(encode(_pose_frame(self.tid, self.seq, ts, res, self.state.body.name)))
+                frame_msg = _pose_frame(self.tid, self.seq, ts, res, self.state.body.name, self.config.estimator)
+                pose_pub.put(encode(frame_msg))
                 values["published"] += 1
                 self.seq += 1
             except zenoh.ZError as exc:
@@ -135,8 +143,9 @@ class _Run:
         return res
 
     def track(self, source: FrameSource, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher,
-              status_pub: zenoh.Publisher, stop: threading.Event) -> None:
-        """The frame loop: until the source ends, a limit or ``stop``."""
+              status_pub: zenoh.Publisher, stop: threading.Event, observe: FrameHook | None = None) -> None:
+        """The frame loop: until the source ends, a limit or ``stop``; ``observe`` is called after
+        every frame."""
         options = self.options
         t_run = time.monotonic()  # --duration counts from here
         body_pub.put(self.body_bytes)
@@ -147,6 +156,8 @@ class _Run:
             if stop.is_set():
                 break
             res = self.step(ts, frame, pose_pub, body_pub)
+            if observe is not None:
+                observe(ts, frame, res)
             if res is None:
                 continue
             now = time.monotonic()
@@ -166,8 +177,9 @@ class _Run:
 
 
 def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConfig, conf: zenoh.Config,
-                options: RunOptions, stop: threading.Event) -> dict[str, int]:
-    """Track frames from ``source`` and publish until the source ends, a limit or ``stop``.
+                options: RunOptions, stop: threading.Event, observe: FrameHook | None = None) -> dict[str, int]:
+    """Track frames from ``source`` and publish until the source ends, a limit or ``stop``; ``observe``
+    (optional) is called after every frame with its time stamp, the frame and the pipeline's result.
 
     With ``options.warm_up`` the pipeline first runs on a generated clip
     (:func:`~tracker_service.pipeline.warmup.warm_up`) before the Zenoh session opens, so a stop during
@@ -201,7 +213,7 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
                      loaded.body.name, loaded.db.n_leaves)
             if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
                 log.warning("no subscriber after %.1f s; tracking anyway", options.wait_for_subscriber)
-            run.track(source, pose_pub, body_pub, status_pub, stop)
+            run.track(source, pose_pub, body_pub, status_pub, stop, observe)
             status_pub.put(run.status(TrackerState.STOPPED))
         finally:
             undeclare_quietly(*reversed(entities))
@@ -232,6 +244,20 @@ def run_from_options(options: RunCommandOptions, stop: threading.Event) -> int:
     if stop.is_set():
         source.close()
         return 0
-    counters = run_tracker(source, loaded, config, conf, options.daemon, stop)
+    if options.video is None:
+        counters = run_tracker(source, loaded, config, conf, options.daemon, stop)
+    else:
+        from tracker_service.viz.overlay import OverlayVideo
+
+        fps = float(getattr(source, "fps", 0.0) or options.daemon.fps_hint)
+        try:
+            video = OverlayVideo(options.video, loaded.camera, fps)
+        except BaseException:
+            source.close()
+            raise
+        with video:
+            counters = run_tracker(source, loaded, config, conf, options.daemon, stop,
+                                   lambda _ts, frame, res: video(frame, res))
+        log.info("wrote the overlay of %d frames to %s", video.frames, options.video)
     log.info("tracker stopped: %s", counters)
     return 0

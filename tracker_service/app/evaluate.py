@@ -21,8 +21,14 @@ from numpy.typing import NDArray
 from protocol.motion import Motion
 from tracker_service.app.options import EvalOptions
 from tracker_service.body.measured import given_body
-from tracker_service.estimators.tree_filter.filter import initial_state
-from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState, new_state, process_frame
+from tracker_service.pipeline.process import (
+    FrameResult,
+    TrackerConfig,
+    TrackerState,
+    force_loss,
+    new_state,
+    process_frame,
+)
 from tracker_service.scene.subject import SubjectSpec
 from tracker_service.scene.synthetic import SceneConfig, SceneFrame, SyntheticScene
 from tracker_service.templates.database import LoadedDatabase
@@ -186,8 +192,10 @@ class _ForcedLosses:
     def __post_init__(self) -> None:
         self.next_loss = self.every_s
 
-    def after(self, t: float, e: float, index: int, res: FrameResult, state: TrackerState) -> TrackerState:
-        """Follow tracked frame ``index`` (time ``t``, error ``e``); the state, with a loss forced."""
+    def after(self, t: float, e: float, index: int, res: FrameResult, state: TrackerState,
+              reset: Callable[[TrackerState], TrackerState]) -> TrackerState:
+        """Follow tracked frame ``index`` (time ``t``, error ``e``); the state, with a loss forced by
+        ``reset`` (the estimator restarted)."""
         if self.lost_at is not None:
             self.streak = self.streak + 1 if e < 0.10 else 0
             if self.streak >= 3:
@@ -196,7 +204,7 @@ class _ForcedLosses:
             self.track_time += 1.0 / self.fps
             if self.every_s > 0 and self.track_time >= self.next_loss:
                 # forced loss: forget the pose, start from the wrong side of the body
-                state = replace(state, filter=initial_state(state.filter.placement))
+                state = reset(state)
                 self.lost_at, self.streak = t, 0
                 self.at.append(index)
                 self.next_loss += self.every_s
@@ -212,7 +220,8 @@ def _scene(motion: Motion, loaded: LoadedDatabase, options: EvalOptions) -> Synt
 
 def _eval_config(config: TrackerConfig, options: EvalOptions, scene: SyntheticScene) -> TrackerConfig:
     """``config`` with the scene's background frames and, if asked, the person's own measurements."""
-    cfg = replace(config, background_frames=options.empty_prefix)
+    # the background learned from as many frames as `run` learns it from (one path for both)
+    cfg = replace(config, background_frames=min(config.background_frames, options.empty_prefix))
     if options.subject_measurements:
         known = subject_measurements(scene.subject.spec)
         if unknown := set(options.subject_measurements) - set(known):
@@ -250,6 +259,10 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         n = scene.n_frames if options.frames is None else min(scene.n_frames, options.empty_prefix + options.frames)
         cfg = _eval_config(config, options, scene)
         state: TrackerState = new_state(loaded.body)
+
+        def lose(st: TrackerState) -> TrackerState:
+            return force_loss(st, loaded.db, loaded.body, loaded.camera, cfg)
+
         for i in range(n):
             fr = scene.frame(i)
             was_tracking = state.phase == "tracking"  # the frame that ends initialisation scores the bodies
@@ -262,7 +275,7 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             if res.joints is None:
                 continue
             e = tally.add(i, fr, res, loaded, was_tracking, in_loss=losses.lost_at is not None)
-            state = losses.after(fr.timestamp, e, len(tally.errs) - 1, res, state)
+            state = losses.after(fr.timestamp, e, len(tally.errs) - 1, res, state, lose)
             if progress is not None:
                 progress(i + 1, n)
     finally:
@@ -298,7 +311,7 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "distance_evals_per_level": [round(float(x), 1) for x in lvl.mean(axis=0)] if len(lvl) else [],
         "templates": int(loaded.db.n_leaves),
         "tree_levels": [int(s) for s in loaded.db.tree.level_sizes],
-        "estimator": "tree",
+        "estimator": config.estimator,
         "appearance_cue": bool(config.appearance is not None and config.filter.appearance_weight > 0),
         "distance": config.distance,
         "occlusion_dynamics": config.occlusion,

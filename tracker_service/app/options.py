@@ -23,6 +23,7 @@ __all__ = [
     "EvalCommandOptions",
     "EvalOptions",
     "Passes",
+    "RecordOptions",
     "RenderOptions",
     "ReplayCommandOptions",
     "ReplayOptions",
@@ -82,15 +83,21 @@ class TrackerOptions:
         Whether that stage or cue is on.
     max_heading_deg : float, optional
         The user faces the camera within this many degrees (None: any heading).
+    smooth_cutoff, smooth_beta : float, optional
+        The One Euro filter's minimum cut-off (Hz) and speed coefficient of the joints' and the
+        root's rotations (``OneEuroParams.min_cutoff_rot/_root``, ``beta_rot/_root``); None: the
+        pipeline's defaults.
     appearance : str, optional
         The appearance network's file, ``off``, or None for the default file when it exists.
+    min_confidence : float
+        Poses whose confidence is below this are withheld (``TrackerConfig.min_confidence``).
     """
 
     db: str | None = None
     body: str = "auto"
     measurements: str | None = None
     subject_allowed: bool = False
-    estimator: Literal["tree"] = "tree"
+    estimator: Literal["tree", "condensation", "drs", "srs"] = "tree"
     distance: Literal["nwxor", "cwxor", "xor"] = "xor"
     occlusion: bool = True
     max_heading_deg: float | None = None
@@ -102,6 +109,9 @@ class TrackerOptions:
     proportions: bool = True
     reading_filter: bool = True
     pose: Literal["mean", "map"] = "mean"
+    smooth_cutoff: float | None = None
+    smooth_beta: float | None = None
+    min_confidence: float = 0.01
 
 
 # ------------------------------------------------------------------------------ app cores
@@ -235,23 +245,29 @@ class TrainAppearanceOptions:
 
 @dataclass(frozen=True)
 class RunCommandOptions:
-    """``mocap-tracker run``: the frame source, the tracker, the Zenoh session and the daemon."""
+    """``mocap-tracker run``: the frame source, the tracker, the Zenoh session and the daemon;
+    ``video``: write the overlay of every frame (silhouette, skeleton, HUD) to this file."""
 
     source: str = "synthetic"
     seed: int = 0
     tracker: TrackerOptions = field(default_factory=TrackerOptions)
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(role="publisher"))
     daemon: RunOptions = field(default_factory=RunOptions)
+    video: str | None = None
 
 
 @dataclass(frozen=True)
 class EvalCommandOptions:
-    """``mocap-tracker eval``: the motion file, the tracker, the evaluation and the output form."""
+    """``mocap-tracker eval``: the motion file, the tracker, the evaluation and the output form
+    (``json``: only the JSON object on stdout, else a readable summary; ``progress``: frame counts on
+    stderr; ``video``: write the overlay of every frame to this file)."""
 
     motion: str
     tracker: TrackerOptions = field(default_factory=lambda: TrackerOptions(subject_allowed=True))
     evaluation: EvalOptions = field(default_factory=EvalOptions)
     json: bool = False
+    progress: bool = True
+    video: str | None = None
 
 
 @dataclass(frozen=True)
@@ -281,6 +297,37 @@ class RenderOptions:
     in_place: bool = False
     masks: bool = False
     json: bool = False
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """``mocap-tracker record``: subscribe to a tracker's poses (and body) and write the session.
+
+    Attributes
+    ----------
+    bvh, jsonl, csv : str, optional
+        Output files (at least one is given).
+    tracker_id : str
+        The tracker whose keys to subscribe to.
+    duration : float, optional
+        Stop after this many seconds (None: until SIGINT / SIGTERM).
+    bvh_names : {'conventional', 'native'}
+        Joint names in the BVH: ``Hips``, ``LeftArm``, ... (what Blender and retargeting tools
+        expect), or the project's own (``pelvis``, ``l_shoulder``, ...; read back exactly by
+        :func:`protocol.formats.load.load_motion`).
+    body_timeout : float
+        Seconds to wait for the tracker's ``BodyInfo`` (asked with a query) when none arrived.
+    zenoh : ZenohOptions
+    """
+
+    bvh: str | None = None
+    jsonl: str | None = None
+    csv: str | None = None
+    tracker_id: str = DEFAULT_TRACKER_ID
+    duration: float | None = None
+    bvh_names: Literal["conventional", "native"] = "conventional"
+    body_timeout: float = 2.0
+    zenoh: ZenohOptions = field(default_factory=ZenohOptions)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ can look at it.
 index, time, pose, 3D and 2D joints, per-part pixel counts and visible fractions, silhouette area
 and bounding box) and ``DIR/scene.json`` (seed, motion, camera, the person's measurements and
 skeleton); with ``--masks`` also ``DIR/silhouettes/*.png`` and colour-coded ``DIR/labels/*.png``.
-``--out NAME.mp4`` (or ``.avi``) writes a video and ``NAME.truth.jsonl`` / ``NAME.scene.json``
+``--out NAME.mp4`` writes an H.264 video a browser plays (:class:`protocol.formats.video.VideoWriter`;
+``.avi``: Motion JPEG) and ``NAME.truth.jsonl`` / ``NAME.scene.json``
 beside it. The command line is :mod:`tracker_service.app.commands.render`.
 """
 
@@ -22,13 +23,15 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from protocol.formats.video import VideoWriter
 from protocol.skeleton import JOINT_NAMES, PARTS
 from tracker_service.app.options import RenderOptions
 
 __all__ = ["VIDEO_CODECS", "label_palette", "render_motion", "truth_record"]
 
-#: Video file suffixes and their codecs.
-VIDEO_CODECS = {".mp4": "mp4v", ".avi": "MJPG"}
+#: Video file suffixes and their codecs (``h264``: :class:`protocol.formats.video.VideoWriter`, yuv420p;
+#: the others: OpenCV's writer with that FourCC).
+VIDEO_CODECS = {".mp4": "h264", ".avi": "MJPG"}
 
 
 def label_palette() -> NDArray[np.uint8]:
@@ -77,14 +80,17 @@ class _Output:
     def __init__(self, out: Path, masks: bool, fps: float, size: tuple[int, int]):
         self.out = out
         self.masks = masks
-        self.writer: cv2.VideoWriter | None = None
-        if out.suffix.lower() in VIDEO_CODECS:
+        self.writer: cv2.VideoWriter | VideoWriter | None = None
+        codec = VIDEO_CODECS.get(out.suffix.lower())
+        if codec is not None:
             out.parent.mkdir(parents=True, exist_ok=True)
             self.truth_path, self.meta_path = out.with_suffix(".truth.jsonl"), out.with_suffix(".scene.json")
-            self.writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*VIDEO_CODECS[out.suffix.lower()]), fps,
-                                          size)
-            if not self.writer.isOpened():
-                raise OSError(f"cannot open a video writer for {out}")
+            if codec == "h264":
+                self.writer = VideoWriter(out, fps)
+            else:
+                self.writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*codec), fps, size)
+                if not self.writer.isOpened():
+                    raise OSError(f"cannot open a video writer for {out}")
         else:
             (out / "frames").mkdir(parents=True, exist_ok=True)
             if masks:
@@ -103,7 +109,9 @@ class _Output:
             cv2.imwrite(str(self.out / "labels" / f"{i:06d}.png"), self.palette[truth.part_labels.astype(np.int64)])
 
     def close(self) -> None:
-        if self.writer is not None:
+        if isinstance(self.writer, VideoWriter):
+            self.writer.close()
+        elif self.writer is not None:
             self.writer.release()
 
 

@@ -77,6 +77,7 @@ def tracker_config(options: TrackerOptions) -> TrackerConfig:
     if max_heading is not None and not 0.0 < max_heading <= 180.0:
         raise ValueError(f"--max-heading must be in (0, 180] degrees, got {max_heading}")
     cfg = TrackerConfig(distance=options.distance, occlusion=options.occlusion, body_candidates=cands, body=given,
+                        estimator=options.estimator, min_confidence=options.min_confidence,
                         filter=FilterParams(max_heading=None if max_heading is None else math.radians(max_heading)))
     if not options.skin:
         cfg = replace(cfg, skin=None)
@@ -84,6 +85,13 @@ def tracker_config(options: TrackerOptions) -> TrackerConfig:
         cfg = replace(cfg, shoes=None)
     if not options.smoothing:
         cfg = replace(cfg, smoothing=None)
+    elif cfg.smoothing is not None and (options.smooth_cutoff is not None or options.smooth_beta is not None):
+        sm = cfg.smoothing
+        if options.smooth_cutoff is not None:
+            sm = replace(sm, min_cutoff_rot=options.smooth_cutoff, min_cutoff_root=options.smooth_cutoff)
+        if options.smooth_beta is not None:
+            sm = replace(sm, beta_rot=options.smooth_beta, beta_root=options.smooth_beta)
+        cfg = replace(cfg, smoothing=sm)
     if options.pose == "map":
         cfg = replace(cfg, use_mean_pose=False)
     if not options.refine:

@@ -1,1 +1,59 @@
-"""tracker_service.estimators."""
+"""Pose estimators behind one interface (:mod:`tracker_service.estimators.base`).
+
+``tree`` (Okada & Stenger's tree-based filter over the template hierarchy, the default),
+``condensation`` (Isard & Blake's particle filter, the baseline) and ``drs`` / ``srs`` (the
+hierarchical particle filter of the cardbox paper with deterministic or stratified resampling).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from protocol.skeleton import Body
+from tracker_service.camera import Camera
+from tracker_service.estimators.tree_filter.model import FilterDB, FilterParams
+
+__all__ = ["ESTIMATORS", "make_estimator"]
+
+#: The estimators ``--estimator`` accepts.
+ESTIMATORS = ("tree", "condensation", "drs", "srs")
+
+
+def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: FilterParams,
+                   seed: int = 0) -> Any:
+    """The estimator called ``name``.
+
+    Parameters
+    ----------
+    name : {'tree', 'condensation', 'drs', 'srs'}
+    db : FilterDB
+        The template database (the tree filter searches it).
+    body : Body
+        The database's body (the particle filters render it).
+    camera : Camera
+        The database's camera.
+    params : FilterParams
+        The tree filter's tuning.
+    seed : int
+        The particle filters' random stream.
+
+    Returns
+    -------
+    Estimator
+    """
+    from tracker_service.estimators.tree_filter.filter import TreeFilter
+
+    if name == "tree":
+        return TreeFilter(db, params)
+    rng = np.random.default_rng(seed)
+    if name == "condensation":
+        from tracker_service.estimators.condensation import Condensation
+
+        return Condensation(body, camera, rng=rng)
+    if name == "drs" or name == "srs":
+        from tracker_service.estimators.hierarchical_pf import HierarchicalPF, HPFParams
+
+        return HierarchicalPF(body, camera, HPFParams(resampling="drs" if name == "drs" else "srs"), rng=rng)
+    raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(ESTIMATORS)}")

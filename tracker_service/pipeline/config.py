@@ -90,9 +90,15 @@ class TrackerConfig:
         per-frame estimate.
     fps : float
         Frame rate assumed when :func:`process_frame` is given no time stamp.
+    estimator : {'tree', 'condensation', 'drs', 'srs'}
+        The pose estimator (:func:`tracker_service.estimators.make_estimator`).
+    estimator_seed : int
+        The particle filters' random stream (reproducible runs).
     min_confidence : float
         Poses whose confidence (the silhouette match, ``exp(-d^2 / 2c^2)``) is below this are
-        withheld: no pose rather than a pose without grounds (0: publish every estimate).
+        withheld: no pose rather than a pose without grounds (0: publish every estimate). 0.01 is
+        the confidence of the distance at which the tree filter counts a frame as a miss
+        (``FilterParams.lost_distance`` 0.15 at ``confidence_scale`` 0.05).
     relearn_after : int
         After this many consecutive withheld frames the background is learned again, robustly
         (:func:`tracker_service.silhouette.background.learn_background_robust`): a person in view
@@ -124,8 +130,10 @@ class TrackerConfig:
     reading_filter: ReadingFilterParams | None = field(default_factory=ReadingFilterParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
-    min_confidence: float = 0.0
-    relearn_after: int = 0
+    min_confidence: float = 0.01
+    estimator: str = "tree"
+    estimator_seed: int = 0
+    relearn_after: int = 45
     relearn_frames: int = 21
     relearn_every: int = 4
 

@@ -58,18 +58,18 @@ class FrameEvidence:
     appearance_ms: float
 
 
-def _heading_window(fstate: FilterState, db: FilterDB, params: FilterParams) -> HeadingWindow:
+def _heading_window(fstate: object, db: FilterDB, params: FilterParams) -> HeadingWindow:
     """Where the appearance cue may propose: headings within ``params.max_turn`` of the filter's
     current one (its support's circular mean; facing the camera when it has none) and within
     ``params.max_heading``."""
-    if len(fstate.leaves):
+    if isinstance(fstate, FilterState) and len(fstate.leaves):
         centre, half = support_heading(fstate, db), params.max_turn
     else:
         centre, half = 0.0, np.pi / 2
     return HeadingWindow(centre, half, np.inf if params.max_heading is None else params.max_heading)
 
 
-def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: FilterState, db: FilterDB, camera: Camera,
+def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, db: FilterDB, camera: Camera,
             config: TrackerConfig, body_scale: float, shoes: ShoeModel | None, tracking: bool) -> FrameEvidence:
     """Build the frame's observation.
 
@@ -79,8 +79,9 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: FilterSta
         BGR frame.
     mask : (H, W) bool
         Its silhouette (non-empty).
-    fstate : FilterState
-        The estimator's state before this frame (the appearance cue proposes near its heading).
+    fstate : object
+        The estimator's state before this frame (the appearance cue proposes near the tree
+        filter's heading).
     db : FilterDB
     camera : Camera
     config : TrackerConfig

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,8 +29,9 @@ from tracker_service.camera import Camera
 from tracker_service.cues.appearance import camera_joints
 from tracker_service.cues.reading_filter import ReadingState
 from tracker_service.cues.shoes import ShoeModel, band_pixels, learn_shoes
+from tracker_service.estimators import make_estimator
 from tracker_service.estimators.base import Estimate
-from tracker_service.estimators.tree_filter.filter import FilterDB, FilterState, initial_state, step
+from tracker_service.estimators.tree_filter.filter import FilterDB, FilterState, TreeFilter, initial_state
 from tracker_service.pipeline.body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.observe import FrameEvidence, observe
@@ -59,7 +60,7 @@ class TrackerState:
     phase: Phase
     background: BackgroundModel | None
     learning: tuple[NDArray[np.uint8], ...]
-    filter: FilterState
+    filter: Any  # the estimator's state (FilterState for the tree filter)
     body: Body
     body_scale: float
     body_scores: dict[str, list[float]]
@@ -77,6 +78,8 @@ class TrackerState:
     withheld: int = 0  # consecutive frames whose pose was withheld (TrackerConfig.min_confidence)
     relearning: bool = False  # learning the background again, robustly (a person was in it)
     relearns: int = 0
+    supported: int = 0  # poses published since the background was learned
+    estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
 
 
 @dataclass(frozen=True)
@@ -162,6 +165,26 @@ def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
     return bool(len(xs)) and abs(float(xs.mean()) - mask.shape[1] / 2) <= radius * mask.shape[1]
 
 
+def _estimator(state: TrackerState, db: FilterDB, db_body: Body, camera: Camera, config: TrackerConfig
+               ) -> tuple[Any, TrackerState]:
+    """The configured estimator: the tree filter over ``db`` (stateless: its state is ``filter``), or a
+    particle filter made on first use and kept in the state (it renders ``db_body`` for ``camera``)."""
+    if config.estimator == "tree":
+        return TreeFilter(db, config.filter), state
+    if state.estimator is None or state.estimator.name != config.estimator:
+        est = make_estimator(config.estimator, db, db_body, camera, config.filter, config.estimator_seed)
+        state = replace(state, estimator=est, filter=est.init())
+    return state.estimator, state
+
+
+def force_loss(state: TrackerState, db: FilterDB, db_body: Body, camera: Camera, config: TrackerConfig
+               ) -> TrackerState:
+    """The estimator restarted with no pose information at its current placement (the evaluation's
+    forced losses: re-acquisition is measured from here)."""
+    estimator, state = _estimator(state, db, db_body, camera, config)
+    return replace(state, filter=estimator.init(getattr(state.filter, "placement", None)))
+
+
 def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig) -> TrackerState:
     """The learning phase: collect empty-room frames, then learn the background (§2.2). When
     re-learning (a person was learned into the background), every ``relearn_every``-th frame over a
@@ -171,28 +194,31 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig)
         frames = (*state.learning, frame) if n % config.relearn_every == 1 else state.learning
         if len(frames) >= max(config.relearn_frames, 3):
             return replace(state, phase="waiting", background=learn_background_robust(np.stack(frames)), learning=(),
-                           relearning=False, frames_in_phase=0)
+                           relearning=False, frames_in_phase=0, supported=0)
         return replace(state, learning=frames, frames_in_phase=n)
     frames = (*state.learning, frame)
     if len(frames) >= max(config.background_frames, 2):
-        return replace(state, phase="waiting", background=learn_background(np.stack(frames)), learning=())
+        return replace(state, phase="waiting", background=learn_background(np.stack(frames)), learning=(),
+                       supported=0)
     return replace(state, learning=frames)
 
 
 def _withhold(state: TrackerState, config: TrackerConfig, why: str) -> TrackerState:
-    """Count a withheld pose; after ``config.relearn_after`` in a row, learn the background again."""
+    """Count a withheld pose; after ``config.relearn_after`` in a row with no pose published since the
+    background was learned (fewer than 10: a person in view when it was learned, the silhouette their ghost),
+    learn the background again."""
     withheld = state.withheld + 1
-    if config.relearn_after <= 0 or withheld < config.relearn_after:
+    if config.relearn_after <= 0 or withheld < config.relearn_after or state.supported >= 10:
         return replace(state, withheld=withheld)
     log.warning("no pose the silhouette supports for %d frames (%s): learning the background again; "
                 "step aside or move a little so that the camera sees the room behind you", withheld, why)
     return replace(state, phase="learning", background=None, learning=(), relearning=True, frames_in_phase=0,
-                   withheld=0, relearns=state.relearns + 1, filter=initial_state(), reading=None, smooth=None)
+                   withheld=0, relearns=state.relearns + 1, filter=None, reading=None, smooth=None)
 
 
 def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_], ev: FrameEvidence,
-                est: Estimate, pose: NDArray[np.float64], fstate: FilterState, db: FilterDB, db_body: Body,
-                camera: Camera, config: TrackerConfig) -> Transition:
+                est: Estimate, pose: NDArray[np.float64], fstate: Any, db: FilterDB, db_body: Body,
+                camera: Camera, config: TrackerConfig, estimator: Any) -> Transition:
     """The initialising phase's bookkeeping: statures and silhouette scores of the candidate bodies,
     shoe colour samples; at its end the body model is chosen (or the given one taken), the shoes
     learned and the phase becomes ``tracking``. Outside that phase only the frame count moves.
@@ -238,7 +264,7 @@ def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.
             base_body = None
             if resized:  # restart the filter at the new size
                 restarted = True
-                fstate = initial_state(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
+                fstate = estimator.init(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
         phase = "tracking"
         frames_in_phase = 0
         if config.shoes is not None and shoe_samples:
@@ -291,28 +317,29 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         state = replace(state, background=update_background(state.background, frame, fg, config.background_rate))
     t1 = time.perf_counter()
     ms = {"background": (t1 - t0) * 1e3}
+    estimator, state = _estimator(state, db, db_body, camera, config)
     if state.phase == "waiting":
         if not _near_centre(mask, config.start_radius):
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
-        state = replace(state, phase="initialising", frames_in_phase=0, filter=initial_state(), body_scores={},
+        state = replace(state, phase="initialising", frames_in_phase=0, filter=estimator.init(), body_scores={},
                         statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
                         reading=None)
     if not mask.any():  # the person left: wait for them to come back to the centre
-        state = replace(state, phase="waiting", filter=initial_state(), reading=None)
+        state = replace(state, phase="waiting", filter=estimator.init(), reading=None)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     fstate = state.filter
-    if not config.occlusion:
+    if not config.occlusion and isinstance(fstate, FilterState):  # eq. 14 off (DM1)
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
     # observe
     ev = observe(frame, mask, fstate, db, camera, config, state.body_scale, state.shoes, state.phase == "tracking")
     ms["appearance"] = ev.appearance_ms
     # estimate
     t2 = time.perf_counter()
-    fstate, est = step(fstate, db, ev.observation, config.filter)
+    fstate, est = estimator.step(fstate, ev.observation)
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     # phases: the body chosen while initialising
-    move = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config)
+    move = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config, estimator)
     # publish
     pose, move = publish(move, state, frame, mask, ev, est, pose, db, db_body, camera, config)
     nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised))
@@ -327,6 +354,6 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, move.body_changed, why)
-    nxt = replace(nxt, withheld=0)
+    nxt = replace(nxt, withheld=0, supported=nxt.supported + 1)
     return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
                             est.evaluations, ms, est.reinitialised, move.body_changed)

@@ -136,7 +136,7 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
     if seen is not None and config.refine is not None:  # ELMO's local refinement (refinement.py)
         pose = refine_pose(pose, body, camera.pose[:3, :3], seen[0], seen[1], body.height, config.refine)
     place = est.placement.copy()
-    if config.depth_from_feet:  # the feet line measures depth better than the template fit's scale
+    if config.depth_from_feet and est.leaf >= 0:  # the feet line measures depth better than the template's scale
         s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)
         if s_feet is not None and abs(scale * s_feet / place[2] - 1.0) < 0.15:
             # s_feet is the floor-row ratio (the templates' size); the subject is `scale` times it

@@ -111,7 +111,7 @@ def fit_frame(img: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8
     s = max(W / w, H / h)
     rw, rh = max(W, round(w * s)), max(H, round(h * s))
     interp = cv2.INTER_AREA if s < 1.0 else cv2.INTER_LINEAR
-    out = cv2.resize(img, (rw, rh), interpolation=interp)
+    out = np.asarray(cv2.resize(img, (rw, rh), interpolation=interp), np.uint8)
     x0, y0 = (rw - W) // 2, (rh - H) // 2
     return out[y0:y0 + H, x0:x0 + W]
 

@@ -37,7 +37,7 @@ def parse(argv: list[str]) -> Any:
 
 def test_every_command_is_registered_once_in_help_order() -> None:
     assert [c.NAME for c in cli.COMMANDS] == ["replay", "demo", "build-db", "train-appearance", "run", "eval",
-                                              "render"]
+                                              "render", "record"]
 
 
 def test_run_arguments_become_run_options() -> None:
@@ -152,6 +152,61 @@ def test_entry_imports_only_the_standard_library_and_nothing_imports_entry() -> 
 
 
 @pytest.mark.parametrize("name", ["daemon.py", "replay_daemon.py", "evaluate.py", "replay.py", "render.py",
-                                  "resources.py", "tracker_config.py", "appearance_training.py", "options.py"])
+                                  "resources.py", "tracker_config.py", "appearance_training.py", "options.py",
+                                  "record.py"])
 def test_nothing_below_the_parser_imports_argparse(name: str) -> None:
     assert "argparse" not in _imports(APP / name, top_level_only=False)
+
+
+def test_smoothing_and_video_options() -> None:
+    o = parse(["run", "--smooth-cutoff", "2.5", "--smooth-beta", "0.7", "--video", "out/run.mp4"])
+    assert (o.tracker.smooth_cutoff, o.tracker.smooth_beta, o.video) == (2.5, 0.7, "out/run.mp4")
+    e = parse(["eval", "--bvh", "t.bvh", "--smooth-cutoff", "3", "--video", "e.mp4", "--json", "-q"])
+    assert (e.tracker.smooth_cutoff, e.tracker.smooth_beta, e.video, e.json, e.progress) == (3.0, None, "e.mp4",
+                                                                                            True, False)
+    assert parse(["eval", "--bvh", "t.bvh", "--json"]).progress  # progress on stderr also with --json
+    d = parse(["run"])
+    assert (d.tracker.smooth_cutoff, d.tracker.smooth_beta, d.video) == (None, None, None)
+    for bad in (["--smooth-cutoff", "0"], ["--smooth-beta", "-1"], ["--no-smoothing", "--smooth-beta", "1"]):
+        with pytest.raises(SystemExit):
+            cli.main(["run", *bad])
+
+
+def test_smoothing_flags_set_the_one_euro_parameters_of_joints_and_root() -> None:
+    from tracker_service.app.options import TrackerOptions
+    from tracker_service.app.tracker_config import tracker_config
+    from tracker_service.pipeline.smoothing import OneEuroParams
+
+    base = OneEuroParams()
+    sm = tracker_config(TrackerOptions(appearance="off", smooth_cutoff=2.0, smooth_beta=0.25)).smoothing
+    assert sm is not None
+    assert (sm.min_cutoff_rot, sm.min_cutoff_root, sm.beta_rot, sm.beta_root) == (2.0, 2.0, 0.25, 0.25)
+    assert (sm.min_cutoff_pos, sm.beta_pos, sm.d_cutoff) == (base.min_cutoff_pos, base.beta_pos, base.d_cutoff)
+    assert tracker_config(TrackerOptions(appearance="off", smooth_beta=3.0)).smoothing == OneEuroParams(
+        beta_rot=3.0, beta_root=3.0)
+    assert tracker_config(TrackerOptions(appearance="off")).smoothing == base
+
+
+def test_opengl_accelerate_info_is_quiet_by_default() -> None:
+    import logging
+
+    cli._setup_logging(0, False)
+    assert not logging.getLogger("OpenGL.acceleratesupport").isEnabledFor(logging.INFO)
+    cli._setup_logging(2, False)
+    assert logging.getLogger("OpenGL.acceleratesupport").isEnabledFor(logging.DEBUG)
+    cli._setup_logging(0, False)
+
+
+def test_eval_summary_is_aligned_lines() -> None:
+    from tracker_service.app.commands.eval import summary_lines
+
+    result = {"motion": "wave", "frames": 40, "tracked_frames": 30, "mpjpe_cm": 6.234, "root_error_cm": 3.0,
+              "mpjpe_2d_px": 4.5, "frames_within_10cm": 0.9, "accel_error_cm": 1.2, "fps": 45.1,
+              "ms_per_frame": {"total": {"min": 10.0, "avg": 22.2, "max": 40.0}}, "body_selected": "mMA",
+              "subject_height_m": 1.71, "forced_losses": 0, "reinitialisations": 0}
+    lines = summary_lines(result, (("video", "e.mp4"),))
+    text = "\n".join(lines)
+    assert "MPJPE" in text and "6.23 cm" in text and "90.0 % of frames" in text and "45.1" in text and "mMA" in text
+    assert lines[-1].split() == ["video", "e.mp4"]
+    starts = {len(line) - len(line.split("  ", 1)[1].lstrip()) for line in lines}
+    assert len(starts) == 1  # the values start in one column

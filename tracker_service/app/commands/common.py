@@ -15,6 +15,7 @@ from tracker_service.app.resources import default_script_dirs
 __all__ = [
     "UsageError",
     "add_tracker_args",
+    "add_video_arg",
     "script_dirs",
     "tracker_id",
     "tracker_options",
@@ -62,6 +63,13 @@ def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
                         config_file=args.config)
 
 
+def add_video_arg(p: argparse.ArgumentParser) -> None:
+    """``--video OUT.mp4``: the overlay of every frame (``run`` and ``eval``)."""
+    p.add_argument("--video", metavar="OUT.mp4",
+                   help="write every frame with the silhouette, the projected skeleton and a HUD drawn on it "
+                        "(H.264 MP4 a browser plays; .gif: an animated GIF)")
+
+
 def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
     """Add the tracker options (``--db``, ``--body``, the cues and stages); ``subject``: ``eval``'s
     ``--measurements subject[:KEY,...]`` is allowed."""
@@ -75,7 +83,10 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
                         "shoulder=M (joint spacing), arm=RATIO, leg=RATIO (1.0 = the family's proportions)"
                         + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
                            if subject else ""))
-    p.add_argument("--estimator", choices=["tree"], default="tree", help="pose estimator (default: tree)")
+    p.add_argument("--estimator", choices=["tree", "condensation", "drs", "srs"], default="tree",
+                   help="pose estimator: tree (Okada & Stenger's tree filter), condensation (1000 particles), "
+                        "drs / srs (hierarchical particle filter, deterministic / stratified resampling) "
+                        "(default: tree)")
     p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
                    help="silhouette distance (default: xor, the most accurate in our measurements; the "
                         "paper's choice is nwxor)")
@@ -87,6 +98,12 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
     p.add_argument("--no-shoes", action="store_true", help="no shoe colour cue for the legs")
     p.add_argument("--no-smoothing", action="store_true", help="publish the raw per-frame estimate "
                                                               "(no One Euro smoothing)")
+    p.add_argument("--smooth-cutoff", type=float, metavar="HZ",
+                   help="One Euro minimum cut-off of the joints' and the root's rotations (default 5 Hz; "
+                        "lower: steadier, more lag)")
+    p.add_argument("--smooth-beta", type=float, metavar="B",
+                   help="One Euro speed coefficient of the joints' and the root's rotations (default 1.5; "
+                        "higher: less lag in fast moves)")
     p.add_argument("--appearance", metavar="PATH|off",
                    help="the appearance cue's network (default: out/appearance/net.npz when it exists; "
                         "mocap-tracker train-appearance makes it, once); off: no cue")
@@ -99,6 +116,9 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
     p.add_argument("--no-reading-filter", action="store_true",
                    help="with the refinement: refine toward each frame's raw reading, not the readings "
                         "Kalman-filtered over time")
+    p.add_argument("--min-confidence", type=float, default=0.01, metavar="C",
+                   help="withhold poses whose silhouette match confidence is below C, in [0, 1] (default 0.01: "
+                        "the match the filter itself counts as a miss; 0: publish every estimate)")
     p.add_argument("--pose", choices=("mean", "map"), default="mean",
                    help="publish the posterior-mean pose (default: hedges between the modes of an "
                         "ambiguous silhouette) or the MAP leaf's pose")
@@ -106,9 +126,19 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
 
 def tracker_options(args: argparse.Namespace, *, subject: bool) -> TrackerOptions:
     """The options :func:`add_tracker_args` added."""
+    cutoff, beta = args.smooth_cutoff, args.smooth_beta
+    if cutoff is not None and not cutoff > 0:
+        raise UsageError("--smooth-cutoff must be > 0 Hz")
+    if beta is not None and not beta >= 0:
+        raise UsageError("--smooth-beta must be >= 0")
+    if not 0.0 <= args.min_confidence <= 1.0:
+        raise UsageError("--min-confidence must be in [0, 1]")
+    if args.no_smoothing and (cutoff is not None or beta is not None):
+        raise UsageError("--smooth-cutoff / --smooth-beta set the smoothing that --no-smoothing turns off")
     return TrackerOptions(
         db=args.db, body=args.body, measurements=args.measurements, subject_allowed=subject,
         estimator=args.estimator, distance=args.distance, occlusion=not args.no_occlusion,
         max_heading_deg=args.max_heading, skin=not args.no_skin, shoes=not args.no_shoes,
         smoothing=not args.no_smoothing, appearance=args.appearance, refine=not args.no_refine,
-        proportions=not args.no_proportions, reading_filter=not args.no_reading_filter, pose=args.pose)
+        proportions=not args.no_proportions, reading_filter=not args.no_reading_filter, pose=args.pose,
+        smooth_cutoff=cutoff, smooth_beta=beta, min_confidence=args.min_confidence)

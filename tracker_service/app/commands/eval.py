@@ -1,5 +1,7 @@
-"""``mocap-tracker eval``: render the synthetic scene for a motion, track it and print the JSON
-contract of :func:`tracker_service.app.evaluate.evaluate_motion`."""
+"""``mocap-tracker eval``: render the synthetic scene for a motion, track it and print a readable
+summary, or with ``--json`` exactly the JSON contract of :func:`tracker_service.app.evaluate.evaluate_motion`.
+Progress goes to stderr (also with ``--json``; not with ``-q``); ``--video OUT.mp4`` writes the overlay
+of every frame."""
 
 from __future__ import annotations
 
@@ -7,13 +9,13 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TextIO
 
-from tracker_service.app.commands.common import add_tracker_args, tracker_options
+from tracker_service.app.commands.common import add_tracker_args, add_video_arg, tracker_options
 from tracker_service.app.options import EvalCommandOptions, EvalOptions
 from tracker_service.app.tracker_config import subject_keys
 
-__all__ = ["CLEAN_STOP", "NAME", "add_parser", "main", "options_from_args"]
+__all__ = ["CLEAN_STOP", "NAME", "add_parser", "main", "options_from_args", "summary_lines"]
 
 NAME = "eval"
 CLEAN_STOP = False
@@ -24,9 +26,10 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     ep = sub.add_parser(NAME, parents=list(parents), help="track a motion rendered as synthetic video; print errors",
                         description="Render the synthetic scene for a BVH recording or gesture script (a subject "
                                     "unlike the database's body models), run the whole pipeline from pixels and "
-                                    "print one JSON object: mpjpe_cm, root_error_cm, mpjpe_2d_px, "
-                                    "frames_within_10cm, accel_error_cm (jitter), reacquire_s_max, fps, ms_per_frame, "
-                                    "distance_evals_per_level, templates, estimator, distance, body_selected, frames.")
+                                    "print a summary, or with --json one JSON object: mpjpe_cm, root_error_cm, "
+                                    "mpjpe_2d_px, frames_within_10cm, accel_error_cm (jitter), reacquire_s_max, fps, "
+                                    "ms_per_frame, distance_evals_per_level, templates, estimator, distance, "
+                                    "body_selected, frames.")
     src = ep.add_mutually_exclusive_group(required=True)
     src.add_argument("--bvh", metavar="FILE")
     src.add_argument("--script", metavar="FILE")
@@ -35,7 +38,8 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     ep.add_argument("--seed", type=int, default=0, help="scene seed (subject, room, lighting, noise)")
     ep.add_argument("--force-loss-every", type=float, default=0.0, metavar="S",
                     help="force a tracking loss every S seconds and measure re-acquisition (default: never)")
-    ep.add_argument("--json", action="store_true", help="print only the JSON object")
+    ep.add_argument("--json", action="store_true", help="print only the JSON object (progress stays on stderr)")
+    add_video_arg(ep)
     return ep
 
 
@@ -43,11 +47,64 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     tracker = tracker_options(args, subject=True)
     return EvalCommandOptions(motion=args.bvh or args.script, tracker=tracker, json=args.json,
                               evaluation=EvalOptions(frames=args.frames, seed=args.seed,
-                                                     force_loss_every_s=args.force_loss_every))
+                                                     force_loss_every_s=args.force_loss_every),
+                              progress=not args.quiet, video=args.video)
+
+
+def _num(v: Any, unit: str = "", nd: int = 2) -> str:
+    return "-" if v is None else f"{v:.{nd}f}{unit}"
+
+
+def summary_lines(result: dict[str, Any], extra: Sequence[tuple[str, str]] = ()) -> list[str]:
+    """The readable summary of an ``eval`` result (aligned ``label  value`` lines), ``extra`` rows last."""
+    ms = result.get("ms_per_frame", {}).get("total", {})
+    within = result.get("frames_within_10cm")
+    rows = [
+        ("motion", str(result.get("motion"))),
+        ("frames", f"{result.get('tracked_frames')} tracked of {result.get('frames')} with the person in view"),
+        ("MPJPE", _num(result.get("mpjpe_cm"), " cm")),
+        ("within 10 cm", "-" if within is None else f"{100.0 * within:.1f} % of frames"),
+        ("root error", _num(result.get("root_error_cm"), " cm")),
+        ("2D error", _num(result.get("mpjpe_2d_px"), " px")),
+        ("jitter", _num(result.get("accel_error_cm"), " cm/frame^2", 3)),
+        ("fps", f"{_num(result.get('fps'), '', 1)} ({_num(ms.get('avg'), ' ms', 1)} per steady frame)"),
+        ("body", f"{result.get('body_selected')} (subject {_num(result.get('subject_height_m'), ' m', 2)})"),
+    ]
+    if result.get("forced_losses"):
+        rows.append(("re-acquired", f"{result.get('reacquired')} of {result.get('forced_losses')} losses, "
+                                    f"slowest {_num(result.get('reacquire_s_max'), ' s')}"))
+    rows.append(("reinitialised", str(result.get("reinitialisations"))))
+    rows.extend(extra)
+    width = max(len(k) for k, _ in rows)
+    return [f"{k:<{width}}  {v}" for k, v in rows]
+
+
+class _Progress:
+    """Frame counts on stderr: one updated line on a terminal, else a line every tenth of the clip."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.last = -1
+        self.shown = False
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.tty:
+            print(f"\r{done}/{total} frames", end="", file=self.stream, flush=True)
+            self.shown = True
+            return
+        step = max(total // 10, 1)
+        if done // step != self.last or done == total:
+            self.last = done // step
+            print(f"{done}/{total} frames", file=self.stream, flush=True)
+
+    def end(self) -> None:
+        if self.tty and self.shown:
+            print(file=self.stream, flush=True)
 
 
 def main(options: EvalCommandOptions) -> int:
-    """Evaluate and print the JSON object (indented unless ``--json``)."""
+    """Evaluate and print the summary (``--json``: the JSON object, on one line)."""
     from dataclasses import replace
 
     from protocol.formats.load import load_motion
@@ -62,10 +119,19 @@ def main(options: EvalCommandOptions) -> int:
     warm_up(loaded.db, loaded.body, loaded.camera, cfg)  # kernels compiled before the clock starts
     evaluation = replace(options.evaluation, subject_measurements=subject_keys(options.tracker.measurements))
 
-    def progress(done: int, total: int) -> None:
-        if not options.json and sys.stderr.isatty():
-            print(f"\r{done}/{total} frames", end="", file=sys.stderr)
+    progress = _Progress(sys.stderr) if options.progress else None
+    if options.video is None:
+        result = evaluate_motion(motion, loaded, cfg, evaluation, progress)
+    else:
+        from tracker_service.viz.overlay import OverlayVideo
 
-    result = evaluate_motion(motion, loaded, cfg, evaluation, progress)
-    print(json.dumps(result) if options.json else json.dumps(result, indent=1))
+        with OverlayVideo(options.video, loaded.camera, evaluation.fps) as video:
+            result = evaluate_motion(motion, loaded, cfg, evaluation, progress,
+                                     observe=lambda fr, _state, res: video(fr.image, res))
+    if progress is not None:
+        progress.end()
+    if options.json:
+        print(json.dumps(result))
+    else:
+        print("\n".join(summary_lines(result, () if options.video is None else (("video", options.video),))))
     return 0

@@ -14,6 +14,7 @@ from typing import Any
 from protocol.net.session import add_zenoh_args
 from tracker_service.app.commands.common import (
     add_tracker_args,
+    add_video_arg,
     tracker_options,
     wait_for_subscriber,
     zenoh_options,
@@ -45,6 +46,7 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
                     help="do not pace file/synthetic sources at their frame rate")
     rp.add_argument("--wait-for-subscriber", type=float, default=0.0, metavar="S",
                     help="wait up to S seconds for a pose subscriber before reading the first frame")
+    add_video_arg(rp)
     add_zenoh_args(rp, "publisher")
     return rp
 
@@ -53,7 +55,8 @@ def options_from_args(args: argparse.Namespace) -> RunCommandOptions:
     return RunCommandOptions(
         source=args.source, seed=args.seed, tracker=tracker_options(args, subject=False), zenoh=zenoh_options(args),
         daemon=RunOptions(tracker_id=args.id, max_frames=args.frames, duration=args.duration,
-                          realtime=not args.as_fast_as_possible, wait_for_subscriber=wait_for_subscriber(args)))
+                          realtime=not args.as_fast_as_possible, wait_for_subscriber=wait_for_subscriber(args)),
+        video=args.video)
 
 
 def main(options: RunCommandOptions) -> int:

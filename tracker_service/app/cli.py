@@ -12,6 +12,7 @@ Subcommands
 ``eval``              track a motion rendered as synthetic video; print the errors as JSON.
 ``render``            render the synthetic camera view of a motion to images or a video.
 ``record``            subscribe to a tracker's poses and write the session as BVH, JSON lines and CSV.
+``calibrate``         make the camera file ``run``/``eval --camera`` read, from checkerboard images.
 
 Exit status: 0 on success (including a clean stop by Ctrl-C / SIGTERM), 1 when the command failed
 (one line on stderr says why), 2 for bad command-line arguments.
@@ -29,7 +30,17 @@ import sys
 from collections.abc import Callable
 
 from protocol.wire.codec import ProtocolError
-from tracker_service.app.commands import Command, build_db, demo, record, render, replay, run, train_appearance
+from tracker_service.app.commands import (
+    Command,
+    build_db,
+    calibrate,
+    demo,
+    record,
+    render,
+    replay,
+    run,
+    train_appearance,
+)
 from tracker_service.app.commands import eval as eval_command
 from tracker_service.app.commands.common import UsageError
 
@@ -37,7 +48,7 @@ __all__ = ["COMMANDS", "PROG", "build_parser", "main", "version"]
 
 PROG = "mocap-tracker"
 #: The commands in the order ``--help`` lists them.
-COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render, record)
+COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render, record, calibrate)
 _BY_NAME: dict[str, Command] = {c.NAME: c for c in COMMANDS}
 
 

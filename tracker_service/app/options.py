@@ -91,6 +91,13 @@ class TrackerOptions:
         The appearance network's file, ``off``, or None for the default file when it exists.
     min_confidence : float
         Poses whose confidence is below this are withheld (``TrackerConfig.min_confidence``).
+    camera_file : str, optional
+        A camera file (JSON in OpenCV's terms, :func:`tracker_service.camera.load_camera_file`):
+        the templates are rendered for that camera (None: the default camera, or the shorthands).
+    camera_height_m, camera_tilt_deg, fov_deg : float, optional
+        Shorthands for the usual set-up (:func:`tracker_service.camera.placed_camera`): camera
+        height, tilt (positive: looking down) and horizontal field of view; None: the default
+        camera's. All None and no ``camera_file``: the default camera and database, unchanged.
     """
 
     db: str | None = None
@@ -112,6 +119,10 @@ class TrackerOptions:
     smooth_cutoff: float | None = None
     smooth_beta: float | None = None
     min_confidence: float = 0.01
+    camera_file: str | None = None
+    camera_height_m: float | None = None
+    camera_tilt_deg: float | None = None
+    fov_deg: float | None = None
 
 
 # ------------------------------------------------------------------------------ app cores

@@ -12,10 +12,13 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tracker_service.app.options import BuildDbOptions, TrainAppearanceOptions
+from tracker_service.app.options import BuildDbOptions, TrackerOptions, TrainAppearanceOptions
 from tracker_service.paths import REPO_ROOT
+
+if TYPE_CHECKING:
+    from tracker_service.camera import Camera
 
 __all__ = [
     "DEFAULT_BODY",
@@ -26,6 +29,8 @@ __all__ = [
     "ensure_appearance",
     "ensure_db",
     "gesture_scripts",
+    "requested_camera",
+    "resolve_db",
 ]
 
 log = logging.getLogger(__name__)
@@ -64,10 +69,11 @@ def gesture_scripts(dirs: Sequence[str]) -> list[Path]:
     return out
 
 
-def build_database(body_name: str, out: Path, options: BuildDbOptions) -> dict[str, Any]:
+def build_database(body_name: str, out: Path, options: BuildDbOptions, camera: Camera | None = None
+                   ) -> dict[str, Any]:
     """Build the template database of one body model into ``out`` (recordings, gesture scripts and
-    limits from ``options``); returns its build metadata (``stats``, ``takes``, ``scripts``,
-    ``build_s``)."""
+    limits from ``options``) for ``camera`` (None: the default camera); returns its build metadata
+    (``stats``, ``takes``, ``scripts``, ``build_s``)."""
     from tracker_service.body.family import body_model
     from tracker_service.build.database import DbBuildConfig, build_filter_db, is_held_out, training_motions
     from tracker_service.camera import default_camera
@@ -84,18 +90,102 @@ def build_database(body_name: str, out: Path, options: BuildDbOptions) -> dict[s
     script_files = gesture_scripts(options.scripts)
     t0 = time.perf_counter()
     motions = training_motions(body, entries, scripts=script_files, progress=True)
-    db, stats = build_filter_db(motions, body, default_camera(), DbBuildConfig(max_poses=options.max_poses),
-                                progress=True)
+    cam = camera or default_camera()
+    db, stats = build_filter_db(motions, body, cam, DbBuildConfig(max_poses=options.max_poses), progress=True)
     meta = {"stats": stats, "takes": [e.path for e in entries], "scripts": [str(s) for s in script_files],
             "build_s": time.perf_counter() - t0}
-    save_db(out, db, body, default_camera(), meta)
+    save_db(out, db, body, cam, meta)
     return meta
 
 
-def ensure_db(path: str | None, body: str = DEFAULT_BODY, build_if_missing: bool = True) -> Any:
-    """Load a database, building the default one first when it is missing."""
+def requested_camera(tracker: TrackerOptions) -> Camera | None:
+    """The camera ``--camera FILE`` or the shorthands (``--camera-height``, ``--camera-tilt``,
+    ``--fov``) ask for; None when none is given (the default camera and database, unchanged).
+
+    Raises
+    ------
+    tracker_service.camera.CameraFileError
+        The camera file cannot be used.
+    """
+    from tracker_service.camera import DEFAULT_HEIGHT_M, load_camera_file, placed_camera
+
+    if tracker.camera_file is not None:
+        return load_camera_file(tracker.camera_file)
+    if tracker.camera_height_m is None and tracker.camera_tilt_deg is None and tracker.fov_deg is None:
+        return None
+    return placed_camera(height_m=DEFAULT_HEIGHT_M if tracker.camera_height_m is None else tracker.camera_height_m,
+                         tilt_deg=tracker.camera_tilt_deg or 0.0, hfov_deg=tracker.fov_deg)
+
+
+def resolve_db(path: str | None, camera: Camera, body: str = DEFAULT_BODY, build_if_missing: bool = True,
+               build_options: BuildDbOptions | None = None) -> Path:
+    """The database folder to track ``camera``'s frames with, built first when needed.
+
+    The frames are brought to the database's working size by
+    :func:`tracker_service.sources.frame_source.fit_frame`, so ``camera`` is compared at that size
+    (:meth:`~tracker_service.camera.Camera.fitted`): the same camera up to a uniform scale reuses
+    the database. Otherwise the database rendered for it, ``out/db/<body>-cam<digest>``, is used,
+    and built there when missing (``build_options``: what to build it from; default the same as
+    the default database).
+
+    Parameters
+    ----------
+    path : str, optional
+        ``--db`` (None: ``out/db/<body>``, built on first use).
+    camera : Camera
+        The requested camera, at its own image size.
+
+    Raises
+    ------
+    tracker_service.templates.database.DatabaseError
+        ``--db`` unreadable, or no database for the camera and ``build_if_missing`` false.
+    """
+    from tracker_service.camera import default_camera, same_camera
+    from tracker_service.templates.database import DatabaseError, camera_db_dir, db_camera, default_db_dir
+
+    base = Path(path) if path else default_db_dir(body)
+    try:
+        base_cam, body = db_camera(base)
+    except DatabaseError:
+        if path or (base / "manifest.json").exists():
+            raise
+        base_cam = default_camera()  # what the default database, once built, is rendered for
+    work = camera.fitted(base_cam.size)
+    if camera.size != base_cam.size:
+        how = ("scaled" if camera.width * base_cam.height == camera.height * base_cam.width
+               else "scaled and centre-cropped")
+        log.info("the camera's %dx%d frames are %s to the database's working size %dx%d",
+                 camera.width, camera.height, how, base_cam.width, base_cam.height)
+    if same_camera(work, base_cam):
+        log.info("the camera matches the database's (%s): using %s", base_cam.summary(), base)
+        if not (base / "manifest.json").exists():
+            ensure_db(None, body, build_if_missing)
+        return base
+    target = camera_db_dir(body, work)
+    try:
+        if same_camera(db_camera(target)[0], work):
+            log.info("using the database rendered for this camera (%s) at %s", work.summary(), target)
+            return target
+    except DatabaseError:
+        pass
+    if not build_if_missing:
+        raise DatabaseError(f"the database at {base} was rendered for camera {base_cam.summary()}; none for camera "
+                            f"{work.summary()} at {target} yet")
+    log.warning("the database at %s was rendered for camera %s; building one for camera %s at %s (a few "
+                "minutes, cached)", base, base_cam.summary(), work.summary(), target)
+    build_database(body, target, build_options or BuildDbOptions(bodies=(body,), scripts=default_script_dirs()),
+                   camera=work)
+    return target
+
+
+def ensure_db(path: str | None, body: str = DEFAULT_BODY, build_if_missing: bool = True,
+              camera: Camera | None = None, build_options: BuildDbOptions | None = None) -> Any:
+    """Load a database, building the default one first when it is missing; with ``camera``, the
+    database rendered for that camera (:func:`resolve_db`)."""
     from tracker_service.templates.database import DatabaseError, default_db_dir, load_db
 
+    if camera is not None:
+        return load_db(resolve_db(path, camera, body, build_if_missing, build_options))
     p = Path(path) if path else default_db_dir(body)
     try:
         return load_db(p)
@@ -108,17 +198,19 @@ def ensure_db(path: str | None, body: str = DEFAULT_BODY, build_if_missing: bool
 
 
 def ensure_appearance(spec: str | None, train_if_missing: bool) -> Any:
-    """The appearance network ``spec`` names (a path, ``off``, or None for the default file).
+    """The appearance network ``spec`` names (a path, ``off``, or None for the default: the network
+    shipped in the package, else ``out/appearance/net.npz``).
 
     A missing default file is trained first when ``train_if_missing`` (some minutes, cached), else
     the cue is off with a warning; a named file that cannot be read, or a corrupt default one,
     raises :class:`tracker_service.cues.appearance.AppearanceError`.
     """
-    from tracker_service.cues.appearance import default_appearance_path, load_appearance
+    from tracker_service.cues.appearance import default_appearance_path, load_appearance, shipped_appearance_path
 
     if spec == "off":
         return None
-    p = Path(spec) if spec else default_appearance_path()
+    # default: the network shipped in the package, else the one train-appearance made
+    p = Path(spec) if spec else (shipped_appearance_path() or default_appearance_path())
     if spec or p.exists():
         net = load_appearance(p)
         if not net.members:

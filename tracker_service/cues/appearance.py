@@ -45,7 +45,7 @@ from tracker_service.paths import out_dir
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
            "Layer", "camera_joints", "default_appearance_path", "ensemble", "forward", "in_view", "joints_cost",
            "load_appearance", "net_input", "person_crop", "pool_readings", "predict_joints", "propose_leaves",
-           "propose_leaves_in_window", "save_appearance"]
+           "propose_leaves_in_window", "save_appearance", "shipped_appearance_path"]
 
 APPEARANCE_FORMAT = "mocap-appearance-net"
 #: Bump on any change of the input, the output or the layers' meaning.
@@ -59,6 +59,14 @@ LOG_VAR_RANGE = (-12.0, 4.0)
 
 class AppearanceError(RuntimeError):
     """A network file that cannot be used; the message says why and how to rebuild it."""
+
+
+def shipped_appearance_path() -> Path | None:
+    """The newest network shipped in the package (``tracker_service/cues/models/appearance-vN.npz``,
+    the largest N; its provenance in the ``.json`` beside it), or None."""
+    files = sorted((Path(__file__).resolve().parent / "models").glob("appearance-v*.npz"),
+                   key=lambda q: int(q.stem.rsplit("-v", 1)[-1]) if q.stem.rsplit("-v", 1)[-1].isdigit() else -1)
+    return files[-1] if files else None
 
 
 def default_appearance_path() -> Path:

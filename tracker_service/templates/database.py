@@ -28,7 +28,8 @@ from tracker_service.silhouette.distance import RunSet
 from tracker_service.silhouette.placement import placement_columns, placement_rows
 from tracker_service.templates.tree import TemplateTree
 
-__all__ = ["DB_FORMAT", "DB_VERSION", "DatabaseError", "LoadedDatabase", "default_db_dir", "load_db", "save_db"]
+__all__ = ["DB_FORMAT", "DB_VERSION", "DatabaseError", "LoadedDatabase", "camera_db_dir", "db_camera", "default_db_dir",
+           "load_db", "save_db"]
 
 DB_FORMAT = "mocap-template-db"
 #: Bump on any change of the arrays' meaning; older folders are then reported as stale.
@@ -44,6 +45,39 @@ def default_db_dir(body: str = "mMA") -> Path:
     """``out/db/<body>`` (:func:`tracker_service.paths.out_dir`): where ``build-db`` writes and
     ``run``/``eval`` look by default."""
     return out_dir() / "db" / body
+
+
+def camera_db_dir(body: str, camera: Camera) -> Path:
+    """``out/db/<body>-cam<digest>``: where the database of ``body`` rendered for ``camera`` (a camera
+    other than the default one, :meth:`tracker_service.camera.Camera.digest`) is cached."""
+    return out_dir() / "db" / f"{body}-cam{camera.digest()}"
+
+
+def db_camera(path: str | Path) -> tuple[Camera, str]:
+    """The camera a database was rendered for and its body model's name, from its manifest alone
+    (cheap: no template arrays are read or checked).
+
+    Raises
+    ------
+    DatabaseError
+        No readable manifest, or one without a usable camera.
+    """
+    p = Path(path)
+    hint = _REBUILD.format(path=p)
+    mpath = p / "manifest.json"
+    if not mpath.is_file():
+        raise DatabaseError(f"no template database at {p} (manifest.json missing); {hint}")
+    try:
+        man = json.loads(mpath.read_text())
+        if man.get("format") != DB_FORMAT or man.get("version") != DB_VERSION:
+            raise DatabaseError(f"{p} is not a template database of format v{DB_VERSION}; {hint}")
+        pose = np.load(p / "camera_pose.npy", allow_pickle=False)
+        cam = Camera(**man["camera"] | {"pose": np.array(pose), "dist": np.array(man["camera"]["dist"])})
+        return cam, str(man["body"]["name"])
+    except DatabaseError:
+        raise
+    except (OSError, KeyError, TypeError, ValueError) as e:
+        raise DatabaseError(f"cannot read the camera of the template database at {p} ({e}); {hint}") from None
 
 
 @dataclass(frozen=True)
@@ -122,6 +156,10 @@ def save_db(path: str | Path, db: FilterDB, body: Body, camera: Camera, meta: di
         "body": {"name": body.name, "measurements": body.measurements},
         "camera": {k: v for k, v in asdict(camera).items() if k not in ("pose", "dist")}
         | {"dist": [float(x) for x in camera.dist]},
+        # the same camera in OpenCV's terms (the camera file's format) and the digest that names
+        # out/db/<body>-cam<digest>: for people reading the manifest; loading uses "camera" above
+        "camera_opencv": camera.to_opencv(),
+        "camera_digest": camera.digest(),
         "meta": meta,
     }
     manifest_path.write_text(json.dumps(manifest, indent=1, default=float))

@@ -14,8 +14,10 @@ from tracker_service.app.resources import default_script_dirs
 
 __all__ = [
     "UsageError",
+    "add_camera_args",
     "add_tracker_args",
     "add_video_arg",
+    "camera_args",
     "script_dirs",
     "tracker_id",
     "tracker_options",
@@ -70,6 +72,48 @@ def add_video_arg(p: argparse.ArgumentParser) -> None:
                         "(H.264 MP4 a browser plays; .gif: an animated GIF)")
 
 
+def add_camera_args(p: argparse.ArgumentParser, *, file: bool = True, fov: bool = True) -> None:
+    """The camera options: ``--camera FILE`` (with ``file``) and the shorthands ``--camera-height``,
+    ``--camera-tilt`` and ``--fov`` (with ``fov``) (``run``, ``eval``; ``calibrate`` takes height and
+    tilt)."""
+    if file:
+        p.add_argument("--camera", metavar="FILE",
+                       help="the camera's calibration (JSON in OpenCV's terms, see docs/RENDERING.md; mocap-tracker "
+                            "calibrate makes it): the templates are rendered for it (a database per camera, built "
+                            "once under out/db/<body>-cam<digest>)")
+    p.add_argument("--camera-height", type=float, metavar="M",
+                   help="camera height above the floor in metres (default 1.2)")
+    p.add_argument("--camera-tilt", type=float, metavar="DEG",
+                   help="camera tilt in degrees, positive looking down (default 0: level)")
+    if fov:
+        p.add_argument("--fov", type=float, metavar="DEG",
+                       help="horizontal field of view in degrees (default 62.7)")
+
+
+def camera_args(args: argparse.Namespace) -> tuple[str | None, float | None, float | None, float | None]:
+    """``(camera_file, height_m, tilt_deg, fov_deg)`` of :func:`add_camera_args`, checked: a file
+    that cannot be used, shorthands out of range, or a file with shorthands are a
+    :class:`UsageError` (exit status 2, one line)."""
+    from tracker_service.camera import CameraFileError, load_camera_file, placed_camera
+
+    file = getattr(args, "camera", None)
+    height, tilt, fov = args.camera_height, args.camera_tilt, args.fov
+    shorthands = [n for n, v in (("--camera-height", height), ("--camera-tilt", tilt), ("--fov", fov)) if v is not None]
+    if file is not None:
+        if shorthands:
+            raise UsageError(f"--camera FILE gives the whole camera: drop {', '.join(shorthands)}")
+        try:
+            load_camera_file(file)
+        except CameraFileError as exc:
+            raise UsageError(str(exc)) from None
+    elif shorthands:
+        try:
+            placed_camera(height_m=1.2 if height is None else height, tilt_deg=tilt or 0.0, hfov_deg=fov)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    return file, height, tilt, fov
+
+
 def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
     """Add the tracker options (``--db``, ``--body``, the cues and stages); ``subject``: ``eval``'s
     ``--measurements subject[:KEY,...]`` is allowed."""
@@ -122,6 +166,7 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
     p.add_argument("--pose", choices=("mean", "map"), default="mean",
                    help="publish the posterior-mean pose (default: hedges between the modes of an "
                         "ambiguous silhouette) or the MAP leaf's pose")
+    add_camera_args(p)
 
 
 def tracker_options(args: argparse.Namespace, *, subject: bool) -> TrackerOptions:
@@ -135,10 +180,12 @@ def tracker_options(args: argparse.Namespace, *, subject: bool) -> TrackerOption
         raise UsageError("--min-confidence must be in [0, 1]")
     if args.no_smoothing and (cutoff is not None or beta is not None):
         raise UsageError("--smooth-cutoff / --smooth-beta set the smoothing that --no-smoothing turns off")
+    camera_file, camera_height, camera_tilt, fov = camera_args(args)
     return TrackerOptions(
         db=args.db, body=args.body, measurements=args.measurements, subject_allowed=subject,
         estimator=args.estimator, distance=args.distance, occlusion=not args.no_occlusion,
         max_heading_deg=args.max_heading, skin=not args.no_skin, shoes=not args.no_shoes,
         smoothing=not args.no_smoothing, appearance=args.appearance, refine=not args.no_refine,
         proportions=not args.no_proportions, reading_filter=not args.no_reading_filter, pose=args.pose,
-        smooth_cutoff=cutoff, smooth_beta=beta, min_confidence=args.min_confidence)
+        smooth_cutoff=cutoff, smooth_beta=beta, min_confidence=args.min_confidence,
+        camera_file=camera_file, camera_height_m=camera_height, camera_tilt_deg=camera_tilt, fov_deg=fov)

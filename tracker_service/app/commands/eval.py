@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from collections.abc import Sequence
 from typing import Any, TextIO
@@ -19,6 +20,8 @@ __all__ = ["CLEAN_STOP", "NAME", "add_parser", "main", "options_from_args", "sum
 
 NAME = "eval"
 CLEAN_STOP = False
+
+log = logging.getLogger(__name__)
 
 
 def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -109,12 +112,16 @@ def main(options: EvalCommandOptions) -> int:
 
     from protocol.formats.load import load_motion
     from tracker_service.app.evaluate import evaluate_motion
-    from tracker_service.app.resources import ensure_db
+    from tracker_service.app.resources import ensure_db, requested_camera
     from tracker_service.app.tracker_config import tracker_config
     from tracker_service.pipeline.warmup import warm_up
 
     motion = load_motion(options.motion, fps=30.0)
-    loaded = ensure_db(options.tracker.db)
+    camera = requested_camera(options.tracker)
+    if camera is not None:
+        log.warning("eval films its synthetic scene with the default camera; the camera option changes only the "
+                    "templates (a mismatch test)")
+    loaded = ensure_db(options.tracker.db, camera=camera)
     cfg = tracker_config(options.tracker)
     warm_up(loaded.db, loaded.body, loaded.camera, cfg)  # kernels compiled before the clock starts
     evaluation = replace(options.evaluation, subject_measurements=subject_keys(options.tracker.measurements))

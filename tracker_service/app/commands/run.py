@@ -21,7 +21,7 @@ from tracker_service.app.commands.common import (
 )
 from tracker_service.app.options import RunCommandOptions, RunOptions
 
-__all__ = ["CLEAN_STOP", "NAME", "add_parser", "main", "options_from_args"]
+__all__ = ["CLEAN_STOP", "NAME", "add_parser", "main", "options_from_args", "with_camera_db"]
 
 NAME = "run"
 CLEAN_STOP = True
@@ -59,6 +59,24 @@ def options_from_args(args: argparse.Namespace) -> RunCommandOptions:
         video=args.video)
 
 
+def with_camera_db(options: RunCommandOptions) -> RunCommandOptions:
+    """``options`` with ``--db`` set to the database rendered for the requested camera (built once
+    when missing, :func:`tracker_service.app.resources.resolve_db`); unchanged without a camera
+    option."""
+    from dataclasses import replace
+
+    from tracker_service.app.resources import requested_camera, resolve_db
+
+    camera = requested_camera(options.tracker)
+    if camera is None:
+        return options
+    if options.source.split(":", 1)[0] == "synthetic":
+        log.warning("the synthetic source films its scene with the default camera; the camera option changes "
+                    "only the templates")
+    db = resolve_db(options.tracker.db, camera)
+    return replace(options, tracker=replace(options.tracker, db=str(db)))
+
+
 def main(options: RunCommandOptions) -> int:
     """Run the daemon until the source ends, a limit, SIGINT or SIGTERM (exit status 0)."""
     from protocol.net.session import stop_on_signals
@@ -70,7 +88,7 @@ def main(options: RunCommandOptions) -> int:
             # imported here, under the signal handlers: numba and cv2 take a while to import
             from tracker_service.app.daemon import run_from_options
 
-            outcome["rc"] = run_from_options(options, stop)
+            outcome["rc"] = run_from_options(with_camera_db(options), stop)
         except BaseException as exc:  # handed to the main thread, which reports it
             outcome["error"] = exc
 

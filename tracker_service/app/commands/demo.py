@@ -600,7 +600,8 @@ def _listen(tracker: subprocess.Popen[str], pose_sub: Any, status_sub: Any, even
 
     motion_s = load_motion(script).duration + 1.0
     expected = o.system_duration if o.system_duration is not None else motion_s
-    deadline = time.monotonic() + 30.0 + 6.0 * expected  # a loaded machine tracks slower than real time
+    limit = 30.0 + 6.0 * expected  # a loaded machine tracks slower than real time
+    deadline = time.monotonic() + limit
     exited_at: float | None = None
     why: str | None = None
     while not stop.is_set():
@@ -615,7 +616,7 @@ def _listen(tracker: subprocess.Popen[str], pose_sub: Any, status_sub: Any, even
         if exited_at is not None and now - exited_at > 1.5 and not busy:  # the clients catch up
             break
         if exited_at is None and now > deadline:
-            why = f"the tracker had not finished after {deadline - now + 30.0 + 6.0 * expected:.0f} s"
+            why = f"the tracker had not finished after {limit:.0f} s"
             tracker.send_signal(signal.SIGINT)
             exited_at = now
         if not busy:

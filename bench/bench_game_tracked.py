@@ -26,9 +26,9 @@ so it varies body size and shape, outfit, room and lighting), the motion is
    visibility and confidence (frames without a pose are skipped, as the game client would).
 
 With ``--cache DIR`` the tracked (and true) joint sequences are stored in ``DIR`` (one ``.npz`` per
-sequence, keyed by the script, speed, seed, lead-in, tracker settings, database and a hash of the
-tracker's and the scripts' source) and reused on later runs, so the recogniser can be iterated on
-without re-tracking; without it every sequence is rendered and tracked afresh.
+sequence, keyed by the script, speed, seed, lead-in, tracker settings, database, a hash of the
+tracker's source and a hash of that script's source) and reused on later runs, so the recogniser can
+be iterated on without re-tracking; without it every sequence is rendered and tracked afresh.
 
 The same recogniser also runs on the scene's ground-truth joints (``truth``: the rendered person's
 true pose), which separates tracker errors from what rendering on another body changes. Events are
@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 import tracker_service
 from game_client.evaluation import Score, match_events
 from game_client.gestures import GestureEvent, GestureRecognizer, RecognizerConfig
-from game_client.variants import Label, Variant, load_labels, variant_labels, variant_motion
+from game_client.variants import Label, Variant, load_labels, script_path, variant_labels, variant_motion
 from protocol.motion import Motion
 from protocol.skeleton import N_JOINTS, N_PARTS
 from tracker_service.app.resources import ensure_appearance, ensure_db
@@ -158,11 +158,17 @@ def _source_hash() -> str:
     checkout, that checkout's tracker runs, so its source is what the key must name)."""
     root = Path(tracker_service.__file__).resolve().parent.parent
     h = hashlib.sha256()
-    for p in sorted([*(root / "tracker_service").rglob("*.py"), *(root / "game_client" / "scripts").glob("*.toml"),
-                     root / "game_client" / "variants.py", root / "protocol" / "motion.py"]):
+    for p in sorted([*(root / "tracker_service").rglob("*.py"), root / "game_client" / "variants.py",
+                     root / "protocol" / "motion.py"]):
         h.update(p.relative_to(root).as_posix().encode())
         h.update(p.read_bytes())
     return h.hexdigest()
+
+
+def _script_hash(name: str) -> str:
+    """Hash of one script's source (part of its sequences' cache key, so adding or editing another
+    script does not invalidate them)."""
+    return hashlib.sha256(script_path(name).read_bytes()).hexdigest()[:16]
 
 
 def _net_digest(net: AppearanceNet | None) -> str | None:
@@ -260,8 +266,9 @@ def main() -> int:
     t_start = time.perf_counter()
     for k, (name, v, seed) in enumerate(jobs):
         m = with_lead_in(variant_motion(name, v), args.lead_in)
-        seq, hit = cached_track(cache, {**base_key, "script": name, "speed": v.speed, "seed": seed}, m, loaded, cfg,
-                                seed)
+        key = {**base_key, "script": name, "script_source": _script_hash(name) if cache else None,
+               "speed": v.speed, "seed": seed}
+        seq, hit = cached_track(cache, key, m, loaded, cfg, seed)
         reused += hit
         tracked, truth = recognise_sequence(seq)
         out = {**seq["meta"], "tracked": tracked, "truth": truth}

@@ -20,7 +20,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cloth_client.contact.collision import round_cone_np  # noqa: E402
+from cloth_client.contact.collision import round_cone_reference  # noqa: E402
 from cloth_client.solver.cloth import structural_strain  # noqa: E402
 from cloth_client.solver.driver import ClothDriver  # noqa: E402
 from cloth_client.solver.garment import make_garment  # noqa: E402
@@ -50,7 +50,7 @@ def diagnose(rel: str, garment: str, particles: int = 2000) -> str:
         k = int(np.argmax(structural_strain(d.model, d.state.x)))
         i0, i1 = (int(v) for v in g.structural[k])
         a, b = d._body_end
-        dist, _, _ = round_cone_np(d.state.x[[i0, i1]], a, b, r[:, 0], r[:, 1])
+        dist, _, _ = round_cone_reference(d.state.x[[i0, i1]], a, b, r[:, 0], r[:, 1])
         row = min(i0, i1) // cols
         rows["r0" if row == 0 else "r1-2" if row <= 2 else "r3+"] += 1
         caps[tuple(sorted({NAMES[int(np.argmin(dist[j]))] for j in range(2)}))] += 1

@@ -43,12 +43,17 @@ strike
     ``up = -0.10`` (or holds the same grip: wrists within 0.15 H, as in a two-handed chop) and is
     seen in >= 30 % of the frames, then falls from ``up = 0.05`` to ``up = -0.15`` in <= 0.14 s
     (>= 1.4 H/s) in front of the body (mean ``fwd >= 0`` through that band: a chop towards the
-    opponent, not an arm circle coming down at the side or behind). Ends when it passes ``-0.15``.
+    opponent, not an arm circle coming down at the side or behind), and not as a loop: at the
+    heights -0.10, -0.05, 0 and 0.05 the wrist comes down on average at most 0.025 H further out
+    than it went up (an arm circle goes up in front and comes down at the side, outside its way
+    up; a strike comes down its way up or inside it). Ends when it passes ``-0.15``.
 fire_ring
     Both wrists rise to ``up >= -0.08`` (about shoulder height or above), apart (>= 0.12 H) and at
     some point not stretched out sideways for 0.1 s in a row (``out <= 0.36``: not a T-pose, nor
     arms passing in from a T towards the chest), for 0.45-3.3 s, then
-    both fall to ``up <= -0.22`` within 0.5 s of leaving that zone. The raise must be seen: after
+    both fall to ``up <= -0.22`` within 0.5 s of leaving that zone and within 1 s of the lower
+    wrist leaving the top (its highest point less 0.05 H: the whole lowering is quick, not only
+    its last part; the slowest real fire ring takes 0.72 s). The raise must be seen: after
     a reset (stream start, gap, glitch, long occlusion) the arms must first be seen below the
     raised zone (``up < -0.10``), so arms that are already up when the recogniser joins and are
     then dropped do not count. A raise that starts within 0.6 s of the previous drop (any drop
@@ -156,6 +161,8 @@ class FireRingParams:
     min_raised_s: float = 0.45
     max_raised_s: float = 3.3
     max_drop_s: float = 0.5
+    top_margin: float = 0.05  # the lowering starts when the lower wrist leaves the top (its peak minus this) ...
+    max_lower_s: float | None = 1.0  # ... and must reach low_up within this (None: no bound)
     min_separation: float = 0.12
     max_out: float = 0.36  # both wrists must at some point be up with out <= this (not a T) ...
     upright_s: float = 0.1  # ... for this long in a row (not arms passing from a T towards the chest)
@@ -167,7 +174,9 @@ class FireRingParams:
 
 
 class FireRingDetector:
-    """Both arms raised (apart, not waving), then both brought down quickly.
+    """Both arms raised (apart, not waving), then both brought down quickly: the last part of the way
+    (from the raised zone to the hips) within ``max_drop_s`` and the whole lowering (from the lower
+    wrist leaving the top, ``top_margin`` below its peak) within ``max_lower_s``.
 
     The raise is part of the gesture: after a reset (start of the stream, a gap, a glitch, a long
     occlusion) the arms must be seen below the raised zone before a raise can start one, so arms
@@ -191,6 +200,7 @@ class FireRingDetector:
         self.t_raised = self.t_exit = self.t_seen = self.t_prev = -math.inf
         self.prev_lo = self.prev_hi = math.nan
         self.peak = -math.inf
+        self.t_top = -math.inf  # when the lower wrist last left the top (peak - top_margin): the lowering's start
         self.min_sep = math.inf
         self.rhythmic = False
         self.upright = False
@@ -225,6 +235,13 @@ class FireRingDetector:
                 self.swings.reset()
         if self.state == "raised":
             self.peak = max(self.peak, lo)
+        if self.state in ("raised", "dropping"):
+            top = self.peak - p.top_margin
+            if lo >= top:
+                self.t_top = f.t
+            elif self.prev_lo >= top:
+                self.t_top = _cross_time(self.t_prev, self.prev_lo, f.t, lo, top)
+        if self.state == "raised":
             if lo >= p.raise_up and max(wl[0], wr[0]) <= p.max_out:
                 self.t_upright = min(self.t_upright, f.t)
                 self.upright = self.upright or f.t - self.t_upright >= p.upright_s - 1e-9
@@ -248,9 +265,12 @@ class FireRingDetector:
             elif hi <= p.low_up:
                 t_low = _cross_time(self.t_prev, self.prev_hi, f.t, hi, p.low_up)
                 drop = t_low - self.t_exit
-                if self.state == "dropping" and drop > p.max_drop_s:
-                    log.debug("fire ring at %.2f s too slow: %.2f s from raised to low", f.t, drop)
-                if self.state == "dropping" and drop <= p.max_drop_s:
+                lower = t_low - self.t_top
+                quick = drop <= p.max_drop_s and (p.max_lower_s is None or lower <= p.max_lower_s)
+                if self.state == "dropping" and not quick:
+                    log.debug("fire ring at %.2f s too slow: %.2f s from raised to low, %.2f s from the top", f.t,
+                              drop, lower)
+                if self.state == "dropping" and quick:
                     speed = (self.peak - p.low_up) / max(t_low - self.t_exit, 0.05)
                     score = 0.5 * clip01((self.peak - p.raise_up) / 0.2) + 0.5 * clip01(speed / 1.0)
                     out = Candidate(self.t_raised, t_low, score)
@@ -279,6 +299,8 @@ class StrikeParams:
     max_swings: int = 4
     min_swing: float = 0.06
     min_drop_fwd: float = 0.0  # mean forward position of the wrist through the band: a chop in front, not a circle
+    loop_levels: tuple[float, ...] = (-0.10, -0.05, 0.0, 0.05)  # heights at which the way down is compared ...
+    max_loop_out: float | None = 0.025  # ... with the way up: at most this much further out on average (None: off)
     occlusion_hold_s: float = 0.5
 
 
@@ -289,6 +311,16 @@ class StrikeDetector:
     "In front": the wrist's mean forward offset from the shoulders while it crosses the band is at
     least ``min_drop_fwd``. A strike chops down towards the opponent in front; an arm circle
     (windmill) that comes down at the side or behind the shoulders is not one.
+
+    "Not a loop": a strike comes down the way it went up, or inside it (a chop in front after a
+    swing up at the side); an arm circle goes up one way and comes down another, outside it (up in
+    front, down at the side). At each height of ``loop_levels`` the wrist's outward offset where it
+    passed on the way down is compared with where it passed on the way up (the last rise, by linear
+    interpolation between frames, so any frame rate reads the same); the mean difference must not
+    exceed ``max_loop_out``. The outward offset is the image's horizontal for a player facing the
+    camera, the coordinate a single camera measures best: a tracker that cannot see an arm pointing
+    at the camera (so reports the circle's raise in front late, snapping up) still places the
+    circle's way down further out than its way up.
     """
 
     def __init__(self, p: StrikeParams) -> None:
@@ -299,12 +331,35 @@ class StrikeDetector:
     def reset(self) -> None:
         self.state = "idle"
         self.t_raised = self.t_top = self.t_seen = self.t_prev = self.t_last_raised = -math.inf
-        self.prev_up = self.prev_fwd = math.nan
+        self.prev_up = self.prev_fwd = self.prev_out = math.nan
         self.fwd_sum, self.fwd_n = 0.0, 0
         self.peak = -math.inf
         self.left_ok = True
         self.left_seen = self.frames = 0
+        self.up_out: dict[float, float] = {}  # outward offset at each loop level on the last way up
+        self.down_out: dict[float, float] = {}  # ... and on the way down since the top
         self.swings.reset()
+
+    def _loop_out(self) -> float:
+        """Mean of (way down - way up) outward offsets over the loop levels passed both ways (0 if none)."""
+        d = [self.down_out[x] - self.up_out[x] for x in self.down_out if x in self.up_out]
+        return sum(d) / len(d) if d else 0.0
+
+    def _track_levels(self, up: float, out: float) -> None:
+        """Record where the wrist crossed each loop level, up or down, since the previous frame."""
+        u0, o0 = self.prev_up, self.prev_out
+        if math.isnan(u0) or u0 == up:
+            return
+        for x in self.p.loop_levels:
+            if u0 < x <= up or up < x <= u0:
+                at = o0 + (out - o0) * (x - u0) / (up - u0)
+                if up > u0:  # on the way up (possibly after a false start down): the latest rise counts
+                    self.up_out[x] = at
+                    self.down_out.pop(x, None)
+                elif self.state == "idle":  # down while idle: that rise is over
+                    self.up_out.pop(x, None)
+                else:
+                    self.down_out.setdefault(x, at)
 
     def _left_fine(self, f: FrameFeatures) -> bool:
         wl, wr = f.wrist_l, f.wrist_r
@@ -329,6 +384,7 @@ class StrikeDetector:
             self.state, self.t_raised, self.peak, self.left_ok = "raised", f.t, up, True
             self.left_seen = self.frames = 0
             self.swings.reset()
+        self._track_levels(up, float(wr[0]))
         if self.state != "idle":
             self.left_ok = self.left_ok and self._left_fine(f)
         if self.state == "raised":
@@ -350,18 +406,21 @@ class StrikeDetector:
                 dur = self.t_last_raised - self.t_raised
                 seen = self.left_seen / max(self.frames, 1)  # the left arm must be seen to rule out two arms
                 fwd = self.fwd_sum / self.fwd_n
+                loop = self._loop_out()
                 if fwd < p.min_drop_fwd:
                     log.debug("strike at %.2f s not in front: wrist %.2f H forward through the band", f.t, fwd)
+                if p.max_loop_out is not None and loop > p.max_loop_out:
+                    log.debug("strike at %.2f s is a loop: down %.3f H further out than up", f.t, loop)
                 if (band <= p.max_band_s and self.left_ok and self.swings.count <= p.max_swings
                         and p.min_raised_s <= dur + 1e-9 and dur <= p.max_raised_s and seen >= p.min_left_seen
-                        and fwd >= p.min_drop_fwd):
+                        and fwd >= p.min_drop_fwd and (p.max_loop_out is None or loop <= p.max_loop_out)):
                     speed = (p.band_top - p.band_bottom) / max(band, 1e-3)
                     score = 0.5 * clip01((self.peak - p.raise_up) / 0.15) + 0.5 * clip01(speed / 3.0)
                     out = Candidate(self.t_raised, t_low, score * (0.6 + 0.4 * seen))
                 self.state = "idle"
             elif f.t - self.t_top > 1.0:
                 self.state = "idle"
-        self.t_prev, self.prev_up, self.prev_fwd = f.t, up, float(wr[2])
+        self.t_prev, self.prev_up, self.prev_fwd, self.prev_out = f.t, up, float(wr[2]), float(wr[0])
         return out
 
 

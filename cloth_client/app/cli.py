@@ -149,7 +149,7 @@ def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str]) ->
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from cloth_client.app.offline import simulate_motion
-    from protocol.motion import load_motion
+    from protocol.formats.load import load_motion
 
     path = args.bvh if args.bvh is not None else args.script
     if not path.is_file():

@@ -8,6 +8,10 @@ faster than :attr:`Continuity.max_joint_speed`, the root faster than
 :attr:`Continuity.max_root_speed`, or a gap longer than :attr:`Continuity.max_gap_s`) is a
 *discontinuity* (tracker re-initialisation, teleport): :mod:`cloth_client.solver.driver` then carries the
 cloth along with the root's rigid motion instead of dragging it through the jump.
+
+Numba kernels do the per-key work (:mod:`cloth_client.avatar.pose_kernels` for the interpolation,
+:mod:`cloth_client.contact.seam_kernels` for the seam's pins); :func:`interpolate_poses_reference` and
+the ``*_reference`` functions of :mod:`cloth_client.contact.seam` are their plain numpy references.
 """
 
 from __future__ import annotations
@@ -26,19 +30,14 @@ from cloth_client.avatar.limb_clearance import (
     clear_limbs_track,
     limb_overlap,
 )
-from cloth_client.contact._kernels import SEAM_LENGTH_ROUNDS, SEAM_LENGTH_SLACK
-from cloth_client.contact._kernels import covered as covered_kernel
-from cloth_client.contact._kernels import keep_seam_length as keep_seam_length_kernel
-from cloth_client.contact._kernels import push_out as push_out_kernel
-from cloth_client.contact._kernels import slide_seam as slide_seam_kernel
-from cloth_client.contact.collision import CapsuleTrack, check_backend, round_cone_np
-from cloth_client.contact.seam import (
-    check_seam_rest,
-    keep_seam_length_reference,
-    push_out_reference,
-    slide_seam_reference,
-)
-from cloth_client.solver._kernels import interpolate_poses as interpolate_kernel
+from cloth_client.avatar.pose_kernels import interpolate_poses as interpolate_kernel
+from cloth_client.contact.collision import CapsuleTrack
+from cloth_client.contact.seam import check_seam_rest
+from cloth_client.contact.seam_kernels import SEAM_LENGTH_ROUNDS, SEAM_LENGTH_SLACK
+from cloth_client.contact.seam_kernels import covered as covered_kernel
+from cloth_client.contact.seam_kernels import keep_seam_length as keep_seam_length_kernel
+from cloth_client.contact.seam_kernels import push_out as push_out_kernel
+from cloth_client.contact.seam_kernels import slide_seam as slide_seam_kernel
 from protocol.kinematics import fk_global
 from protocol.rotations import matrix_to_quat, quat_slerp, rotvec_to_matrix
 from protocol.skeleton import CAPSULE_JOINTS, POSE_SIZE, Body
@@ -53,6 +52,7 @@ __all__ = [
     "body_of",
     "capsule_endpoints",
     "interpolate_poses",
+    "interpolate_poses_reference",
     "is_discontinuity",
     "limb_overlap",
     "pose_keys",
@@ -93,7 +93,7 @@ def _rotvec_from_quat(q: F64) -> F64:
     return out
 
 
-def interpolate_poses(p0: F64, p1: F64, s: F64, backend: str = "numba") -> F64:
+def interpolate_poses(p0: F64, p1: F64, s: F64) -> F64:
     """Articulated interpolation between two poses.
 
     Parameters
@@ -106,19 +106,21 @@ def interpolate_poses(p0: F64, p1: F64, s: F64, backend: str = "numba") -> F64:
     Returns
     -------
     (K, P) float64
-        Root position linear, root and joint rotations slerped along the shorter arc.
-        ``backend="numpy"`` runs the plain reference of the kernel (rotation vectors through
-        matrices and :func:`protocol.rotations.quat_slerp`).
+        Root position linear, root and joint rotations slerped along the shorter arc (the kernel
+        :func:`cloth_client.avatar.pose_kernels.interpolate_poses`; :func:`interpolate_poses_reference`
+        is its plain numpy reference).
     """
-    s = np.asarray(s, dtype=np.float64)
-    check_backend(backend)
-    if np.shape(p0) != (POSE_SIZE,) or np.shape(p1) != (POSE_SIZE,):
-        raise ValueError(f"poses must have shape ({POSE_SIZE},), got {np.shape(p0)} and {np.shape(p1)}")
-    if backend == "numba":
-        res = np.empty((len(s), POSE_SIZE))
-        interpolate_kernel(np.ascontiguousarray(p0, dtype=np.float64), np.ascontiguousarray(p1, dtype=np.float64),
-                           np.ascontiguousarray(s), res)
-        return res
+    s = _check_poses(p0, p1, s)
+    res = np.empty((len(s), POSE_SIZE))
+    interpolate_kernel(np.ascontiguousarray(p0, dtype=np.float64), np.ascontiguousarray(p1, dtype=np.float64),
+                       np.ascontiguousarray(s), res)
+    return res
+
+
+def interpolate_poses_reference(p0: F64, p1: F64, s: F64) -> F64:
+    """:func:`interpolate_poses` in plain numpy: rotation vectors through matrices and
+    :func:`protocol.rotations.quat_slerp` (reference of :func:`cloth_client.avatar.pose_kernels.interpolate_poses`)."""
+    s = _check_poses(p0, p1, s)
     q0 = matrix_to_quat(rotvec_to_matrix(p0[3:].reshape(-1, 3)))  # (R, 4)
     q1 = matrix_to_quat(rotvec_to_matrix(p1[3:].reshape(-1, 3)))
     q = quat_slerp(q0[None], q1[None], np.broadcast_to(s[:, None], (len(s), len(q0))))
@@ -126,6 +128,14 @@ def interpolate_poses(p0: F64, p1: F64, s: F64, backend: str = "numba") -> F64:
     out[:, :3] = (1.0 - s[:, None]) * p0[:3] + s[:, None] * p1[:3]
     out[:, 3:] = _rotvec_from_quat(q).reshape(len(s), -1)
     return out
+
+
+def _check_poses(p0: F64, p1: F64, s: F64) -> F64:
+    """``s`` as float64, after checking that ``p0`` and ``p1`` are poses ``(P,)``."""
+    s = np.asarray(s, dtype=np.float64)
+    if np.shape(p0) != (POSE_SIZE,) or np.shape(p1) != (POSE_SIZE,):
+        raise ValueError(f"poses must have shape ({POSE_SIZE},), got {np.shape(p0)} and {np.shape(p1)}")
+    return s
 
 
 @dataclass(frozen=True)
@@ -208,76 +218,59 @@ class AvatarKeys:
         if np.ndim(points) != 3 or np.shape(points)[0] != self.track.n_keys or np.shape(points)[2] != 3:
             raise ValueError(f"points must have shape ({self.track.n_keys}, P, 3), got {np.shape(points)}")
 
-    def push_out(self, points: F64, clearance: float, backend: str = "numba") -> F64:
+    def push_out(self, points: F64, clearance: float) -> F64:
         """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the body at their key
-        (two projection passes over the nearest capsule); ``backend="numpy"`` runs the plain
-        reference of the kernel (:func:`cloth_client.contact.seam.push_out_reference`)."""
-        check_backend(backend)
+        (two projection passes over the nearest capsule; reference:
+        :func:`cloth_client.contact.seam.push_out_reference`)."""
         self._check_points(points)
-        if backend == "numpy":
-            return push_out_reference(self.track, points, clearance)
         moved = np.array(points, dtype=np.float64, order="C")
         push_out_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
                         np.ascontiguousarray(self.track.radii), float(clearance), 2)
         return moved
 
     def slide_seam(self, points: F64, clearance: float, spread: int = 0, wrap: bool = False,
-                   rest: F64 | None = None, backend: str = "numba") -> F64:
+                   rest: F64 | None = None) -> F64:
         """``points (K + 1, P, 3)``, pins in seam order, slid out of the body parts covering them:
         each part's covered pins carried together along one direction, the move spread over
         ``spread`` pins either side with a linear fall-off (round the seam when ``wrap``), pushed
         radially to ``clearance``, then, given the seam's segment rest lengths ``rest (S,)`` (``S =
         P`` when ``wrap``, else ``P - 1``), what is still stretched shortened
-        (:meth:`keep_seam_length`). ``_contact_kernels.slide_seam`` documents the rule;
-        ``backend="numpy"`` runs the plain reference (:func:`cloth_client.contact.seam.slide_seam_reference`)."""
-        check_backend(backend)
+        (:meth:`keep_seam_length`). :func:`cloth_client.contact.seam_kernels.slide_seam` documents the
+        rule (reference: :func:`cloth_client.contact.seam.slide_seam_reference`)."""
         self._check_points(points)
         if spread < 0:
             raise ValueError(f"spread must be >= 0, got {spread}")
         seg = check_seam_rest(points.shape[1], rest, wrap)
-        if backend == "numpy":
-            return slide_seam_reference(self.track, points, clearance, spread, wrap, seg)
         moved = np.array(points, dtype=np.float64, order="C")
         slide_seam_kernel(moved, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
                           np.ascontiguousarray(self.track.radii), float(clearance), int(spread), bool(wrap), seg)
         return moved
 
     def keep_seam_length(self, points: F64, clearance: float, rest: F64, rounds: int = SEAM_LENGTH_ROUNDS,
-                         slack: float = SEAM_LENGTH_SLACK, backend: str = "numba") -> F64:
+                         slack: float = SEAM_LENGTH_SLACK) -> F64:
         """``points (K + 1, P, 3)``, a seam's pins in order, with every segment ``i -> i + 1`` longer
         than ``(1 + slack) rest[i]`` shortened and the pins kept ``clearance`` outside the body
-        (``rest (S,)``: ``S = P`` closes the ring). ``_contact_kernels.keep_seam_length``
-        documents the rule; ``backend="numpy"`` runs the plain reference
-        (:func:`cloth_client.contact.seam.keep_seam_length_reference`)."""
-        check_backend(backend)
+        (``rest (S,)``: ``S = P`` closes the ring). :func:`cloth_client.contact.seam_kernels.keep_seam_length`
+        documents the rule (reference: :func:`cloth_client.contact.seam.keep_seam_length_reference`)."""
         self._check_points(points)
         seg = check_seam_rest(points.shape[1], rest, wrap=np.size(rest) == points.shape[1])
-        if backend == "numpy":
-            return keep_seam_length_reference(self.track, points, clearance, seg, rounds, slack)
         out = np.array(points, dtype=np.float64, order="C")
         keep_seam_length_kernel(out, np.ascontiguousarray(self.track.a), np.ascontiguousarray(self.track.b),
                                 np.ascontiguousarray(self.track.radii), float(clearance), seg, int(rounds),
                                 float(slack))
         return out
 
-    def covered(self, points: F64, margin: float | F64, backend: str = "numba") -> NDArray[np.bool_]:
+    def covered(self, points: F64, margin: float | F64) -> NDArray[np.bool_]:
         """Which of ``points (K + 1, P, 3)`` lie within ``margin`` of the body at their key, ``(P,)``
         (true if at any key): a shrugging shoulder over a collar pin, a hand on the waistband.
 
-        ``margin`` is a distance in metres, or one per capsule ``(C,)``; ``backend="numpy"`` runs the
-        plain reference of the kernel."""
-        if backend == "numba":
-            res = np.empty(points.shape[1], dtype=bool)
-            reach = np.broadcast_to(np.asarray(margin, dtype=np.float64), (self.track.radii.shape[0],))
-            covered_kernel(np.ascontiguousarray(points, dtype=np.float64), self.track.a, self.track.b,
-                           self.track.radii, np.ascontiguousarray(reach), res)
-            return res
-        out = np.zeros(points.shape[1], dtype=bool)
-        for k in range(points.shape[0]):
-            d, _, _ = round_cone_np(points[k], self.track.a[k], self.track.b[k], self.track.radii[:, 0],
-                                    self.track.radii[:, 1])
-            out |= (d < margin).any(axis=1)
-        return out
+        ``margin`` is a distance in metres, or one per capsule ``(C,)`` (reference:
+        :func:`cloth_client.contact.seam.covered_reference`)."""
+        res = np.empty(points.shape[1], dtype=bool)
+        reach = np.broadcast_to(np.asarray(margin, dtype=np.float64), (self.track.radii.shape[0],))
+        covered_kernel(np.ascontiguousarray(points, dtype=np.float64), self.track.a, self.track.b,
+                       self.track.radii, np.ascontiguousarray(reach), res)
+        return res
 
 
 def _swing(c: F64, u: F64, y: F64) -> F64:

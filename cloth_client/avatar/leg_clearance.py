@@ -6,7 +6,7 @@ left thigh and the right shin 1 mm into each other, the shins 2 mm apart). The s
 hangs between the knees, and cloth caught between two legs that close on it and move in opposite
 directions has no position outside both: each of two neighbouring particles sticks to a different
 leg and the spring between them is torn to 2.3x its length for a frame (skirt ``walk_normal_001``
-128 %, ``walk_not-confident_001`` 34 %, session 20; ``walk_feminine_001`` 267 % in another run).
+128 %, ``walk_not-confident_001`` 34 %; ``walk_feminine_001`` 267 % in another run).
 
 :func:`clear_legs` turns each leg out about its hip joint, along the pelvis's left-right axis, by
 half of what the gap between the two legs lacks of ``clearance`` (two cloth margins, as for the

@@ -6,13 +6,13 @@ recordings up to 14 cm deep, most often 2-7 cm, in 40 of 252 takes). No cloth po
 outside both parts, so cloth under the limb ends inside one of them, and a limb that later leaves
 the trunk drags the garment with it. An upper arm pressed against the ribs or the hip (an arm held
 tight to the side; CMU ``61_10`` up to 38 mm deep) leaves no room for the cape caught under it,
-which the arm then drags (cape ``call_normal_001`` 261 %, ``61_10_scaled`` 325 % strain, session 19).
+which the arm then drags (cape ``call_normal_001`` 261 %, ``61_10_scaled`` 325 % strain).
 
 :func:`clear_limbs` moves each sunk limb out the way the arm itself would move: the elbow turns about
 the shoulder and the wrist about the elbow (every length kept) until the limb's surface is
 ``clearance`` away from the trunk's; the hand is carried with the wrist and then turns the same way.
 An upper arm turns about the fixed shoulder: its elbow moves by the push over the deepest point's
-axis fraction (a lever, at least :data:`~cloth_client.contact._kernels.UPPER_ARM_MIN_LEVER`), the
+axis fraction (a lever, at least :data:`~cloth_client.avatar.limb_kernels.UPPER_ARM_MIN_LEVER`), the
 forearm and hand ride along. The push is along the outward normal of the trunk surface nearest the
 deepest point of the limb's axis, by that point's depth plus the clearance, so it grows
 continuously from zero as a limb comes within the clearance. The correction is carried from key to
@@ -25,6 +25,10 @@ forearm would need more than ``MAX_PUSH`` is left as recorded, for
 The corrected capsules are the avatar: the cloth collides with them, penetration is measured
 against them and the renderer draws them (:attr:`cloth_client.solver.driver.ClothDriver.body_capsules`;
 :func:`cloth_client.avatar.capsules.avatar_capsules` for a pose sequence without a driver).
+
+The numba kernels of both rules are in :mod:`cloth_client.avatar.limb_kernels`; the functions here
+run them, and :func:`limb_overlap_reference` and :func:`clear_limbs_track_reference` are their plain
+numpy references (tests hold both equal).
 """
 
 from __future__ import annotations
@@ -32,12 +36,12 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from cloth_client.contact.collision import check_backend, round_cone_np
-from cloth_client.contact import _kernels as K
+from cloth_client.avatar import limb_kernels as K
+from cloth_client.contact.collision import round_cone_reference
 from protocol.skeleton import CAPSULE_INDEX
 
 __all__ = ["ARMS", "LIMBS", "LIMB_CLEARANCE", "MAX_PUSH", "TRUNK", "clear_limbs", "clear_limbs_track",
-           "limb_overlap"]
+           "clear_limbs_track_reference", "limb_overlap", "limb_overlap_reference"]
 
 F64 = NDArray[np.float64]
 
@@ -59,7 +63,7 @@ MAX_PUSH = 0.17
 
 
 def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
-                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9, backend: str = "numba") -> F64:
+                 trunk: NDArray[np.int64] = TRUNK, samples: int = 9) -> F64:
     """How deep each limb capsule's surface sinks into the trunk capsules in one pose.
 
     Parameters
@@ -80,25 +84,34 @@ def limb_overlap(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
         metres (``d_trunk`` the signed distance of the axis point to a trunk surface): > 0 when the
         two surfaces overlap by that much, e.g. a forearm swung through the hips.
 
-    ``backend="numpy"`` runs the plain reference of the kernel.
+    Runs the kernel :func:`cloth_client.avatar.limb_kernels.limb_overlap`; :func:`limb_overlap_reference`
+    is its plain numpy reference.
     """
-    check_backend(backend)
-    if samples < 1:
-        raise ValueError(f"samples must be >= 1, got {samples}")
-    if backend == "numba":
-        a64, b64 = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
-        r64 = np.ascontiguousarray(radii, dtype=np.float64)
-        li, ti = np.ascontiguousarray(limbs, dtype=np.int64), np.ascontiguousarray(trunk, dtype=np.int64)
-        n = a64.shape[0] if a64.ndim == 2 else -1
-        if a64.shape != (n, 3) or b64.shape != (n, 3) or r64.shape != (n, 2) or li.ndim != 1 or ti.ndim != 1:
-            raise ValueError(f"limb_overlap: a, b must be (C, 3), radii (C, 2); got {a64.shape}, {b64.shape}, "
-                             f"{r64.shape}")  # the kernel checks the capsule indices against C
-        res = np.empty(len(li))
-        K.limb_overlap(a64, b64, r64, li, ti, np.linspace(0.0, 1.0, samples), res)
-        return res
+    _check_samples(samples)
+    a64, b64 = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
+    r64 = np.ascontiguousarray(radii, dtype=np.float64)
+    li, ti = np.ascontiguousarray(limbs, dtype=np.int64), np.ascontiguousarray(trunk, dtype=np.int64)
+    n = a64.shape[0] if a64.ndim == 2 else -1
+    if a64.shape != (n, 3) or b64.shape != (n, 3) or r64.shape != (n, 2) or li.ndim != 1 or ti.ndim != 1:
+        raise ValueError(f"limb_overlap: a, b must be (C, 3), radii (C, 2); got {a64.shape}, {b64.shape}, "
+                         f"{r64.shape}")  # the kernel checks the capsule indices against C
+    res = np.empty(len(li))
+    K.limb_overlap(a64, b64, r64, li, ti, np.linspace(0.0, 1.0, samples), res)
+    return res
+
+
+def limb_overlap_reference(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64] = LIMBS,
+                           trunk: NDArray[np.int64] = TRUNK, samples: int = 9) -> F64:
+    """:func:`limb_overlap` in plain numpy (reference of :func:`cloth_client.avatar.limb_kernels.limb_overlap`)."""
+    _check_samples(samples)
     depth, _ = _axis_depth(a[None], b[None], radii, limbs, trunk, np.linspace(0.0, 1.0, samples))
     out: F64 = depth[0].max(axis=1)
     return out
+
+
+def _check_samples(samples: int) -> None:
+    if samples < 1:
+        raise ValueError(f"samples must be >= 1, got {samples}")
 
 
 def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDArray[np.int64],
@@ -124,8 +137,8 @@ def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDA
     k, n_l, n_s, n_t = a.shape[0], len(limbs), len(s), len(trunk)
     pts = a[:, limbs, None] + s[None, None, :, None] * (b[:, limbs] - a[:, limbs])[:, :, None]  # (K, L, S, 3)
     # every key's points against every key's trunk (K is small), then the matching key's block
-    d, nrm, _ = round_cone_np(pts.reshape(-1, 3), a[:, trunk].reshape(-1, 3), b[:, trunk].reshape(-1, 3),
-                              np.tile(radii[trunk, 0], k), np.tile(radii[trunk, 1], k))
+    d, nrm, _ = round_cone_reference(pts.reshape(-1, 3), a[:, trunk].reshape(-1, 3), b[:, trunk].reshape(-1, 3),
+                                     np.tile(radii[trunk, 0], k), np.tile(radii[trunk, 1], k))
     kk = np.arange(k)
     d = d.reshape(k, n_l * n_s, k, n_t)[kk, :, kk].reshape(k, n_l, n_s, n_t)
     nrm = nrm.reshape(k, n_l * n_s, k, n_t, 3)[kk, :, kk].reshape(k, n_l, n_s, n_t, 3)
@@ -137,7 +150,7 @@ def _axis_depth(a: F64, b: F64, radii: F64, limbs: NDArray[np.int64], trunk: NDA
 
 
 def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, max_push: float = MAX_PUSH,
-                iterations: int = 4, samples: int = 9, backend: str = "numba") -> tuple[F64, F64]:
+                iterations: int = 4, samples: int = 9) -> tuple[F64, F64]:
     """Capsule endpoints with every sunk upper arm, forearm and hand turned out of the trunk.
 
     :func:`clear_limbs_track` with no correction carried in (keys taken in time order); see there
@@ -149,12 +162,12 @@ def clear_limbs(a: F64, b: F64, radii: F64, clearance: float = LIMB_CLEARANCE, m
         Copies; unchanged where no limb is within ``clearance`` of the trunk and no carried
         correction holds one.
     """
-    a2, b2, _ = clear_limbs_track(a, b, radii, None, clearance, max_push, iterations, samples, backend)
+    a2, b2, _ = clear_limbs_track(a, b, radii, None, clearance, max_push, iterations, samples)
     return a2, b2
 
 
 def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, clearance: float = LIMB_CLEARANCE,
-                      max_push: float = MAX_PUSH, iterations: int = 4, samples: int = 9, backend: str = "numba",
+                      max_push: float = MAX_PUSH, iterations: int = 4, samples: int = 9,
                       first_given: bool = False) -> tuple[F64, F64, F64]:
     """Capsule endpoints of keys in time order with every sunk upper arm, forearm and hand turned out
     of the trunk, and the corrections to carry to the next key.
@@ -173,10 +186,10 @@ def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, cle
     where alternate pushes out of the two parts end in different places): a recorded hand in that
     crease was put 15 cm apart on two keys 8 ms apart, dragging the cloth through itself. So when
     the fresh correction moves a joint (elbow, wrist, hand tip) more than
-    :data:`~cloth_client.contact._kernels.CARRY_JUMP` from the previous key's correction, the
+    :data:`~cloth_client.avatar.limb_kernels.CARRY_JUMP` from the previous key's correction, the
     previous one is applied instead (its offsets, each joint turned about its moved parent, lengths
     kept): pushed out as above if the limb sinks with it, else relaxed towards the recording by as
-    much of :data:`~cloth_client.contact._kernels.RELAX_RATE` as keeps the limb clear (bisection).
+    much of :data:`~cloth_client.avatar.limb_kernels.RELAX_RATE` as keeps the limb clear (bisection).
     The corrected limb thus stays on the side of the trunk it was turned to; the fresh correction
     takes over again once it comes within ``CARRY_JUMP`` of the carried one. Where the two agree,
     keys are corrected exactly as without the memory. A carried correction is dropped (the arm
@@ -203,8 +216,6 @@ def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, cle
         Rounds per side (each clears the deepest axis sample of each capsule).
     samples : int
         Axis samples per capsule.
-    backend : {"numba", "numpy"}
-        The kernel or the plain numpy reference (same rule; a test holds them equal).
     first_given : bool
         ``memory`` is the correction of ``a[0]`` itself, not of a key before it: the keys start
         where the previous call's last key ended (the same pose), and the correction is applied
@@ -217,31 +228,48 @@ def clear_limbs_track(a: F64, b: F64, radii: F64, memory: F64 | None = None, cle
         correction holds one.
     memory : (2, 3, 3) float64
         The offsets at the last key.
+
+    Runs the kernel :func:`cloth_client.avatar.limb_kernels.clear_limbs`;
+    :func:`clear_limbs_track_reference` is its plain numpy reference.
     """
+    single, a2, b2, mem = _track_inputs(a, b, memory)
+    s = np.linspace(0.0, 1.0, samples)
+    K.clear_limbs(a2, b2, np.ascontiguousarray(radii, dtype=np.float64), ARMS, TRUNK, s, clearance, max_push,
+                  iterations, mem, first_given)
+    if single:
+        return a2[0], b2[0], mem
+    return a2, b2, mem
+
+
+def clear_limbs_track_reference(a: F64, b: F64, radii: F64, memory: F64 | None = None,
+                                clearance: float = LIMB_CLEARANCE, max_push: float = MAX_PUSH, iterations: int = 4,
+                                samples: int = 9, first_given: bool = False) -> tuple[F64, F64, F64]:
+    """:func:`clear_limbs_track` in plain numpy, same rule and parameters (reference of
+    :func:`cloth_client.avatar.limb_kernels.clear_limbs`)."""
+    single, a2, b2, mem = _track_inputs(a, b, memory)
+    s = np.linspace(0.0, 1.0, samples)
+    for k in range(len(a2)):  # key after key: each continues from the previous key's correction
+        _clear_key(a2[k:k + 1], b2[k:k + 1], radii, mem, clearance, max_push, iterations, s, k == 0 and first_given)
+    if single:
+        return a2[0], b2[0], mem
+    return a2, b2, mem
+
+
+def _track_inputs(a: F64, b: F64, memory: F64 | None) -> tuple[bool, F64, F64, F64]:
+    """``(single, a (K, C, 3), b (K, C, 3), memory (2, 3, 3))``: copies of the inputs of
+    :func:`clear_limbs_track` (``single``: one key ``(C, 3)`` was given)."""
     single = a.ndim == 2
     a2 = np.array(a[None] if single else a, dtype=np.float64)
     b2 = np.array(b[None] if single else b, dtype=np.float64)
     mem = np.zeros((2, 3, 3)) if memory is None else np.array(memory, dtype=np.float64)
     if mem.shape != (2, 3, 3):
         raise ValueError(f"memory must have shape (2, 3, 3), got {mem.shape}")
-    s = np.linspace(0.0, 1.0, samples)
-    if backend == "numba":
-        K.clear_limbs(a2, b2, np.ascontiguousarray(radii, dtype=np.float64), ARMS, TRUNK, s, clearance, max_push,
-                      iterations, mem, first_given)
-    elif backend == "numpy":
-        for k in range(len(a2)):  # key after key: each continues from the previous key's correction
-            _clear_key(a2[k:k + 1], b2[k:k + 1], radii, mem, clearance, max_push, iterations, s,
-                       k == 0 and first_given)
-    else:
-        raise ValueError(f"unknown backend {backend!r}")
-    if single:
-        return a2[0], b2[0], mem
-    return a2, b2, mem
+    return single, a2, b2, mem
 
 
 def _clear_key(a: F64, b: F64, radii: F64, mem: F64, clearance: float, max_push: float, iterations: int,
                s: F64, given: bool) -> None:
-    """One key ``(1, C, 3)`` of :func:`clear_limbs_track`'s numpy reference, in place (``mem`` too);
+    """One key ``(1, C, 3)`` of :func:`clear_limbs_track_reference`, in place (``mem`` too);
     ``given``: ``mem`` is this key's own correction."""
     for side, chain in enumerate(ARMS):
         if _deepest(a, b, radii, chain[1], clearance, s)[0][0] > max_push:

@@ -19,8 +19,9 @@ Response
 --------
 :mod:`cloth_client.contact.response`.
 
-The numba kernels in :mod:`cloth_client.solver._kernels` implement the same operations; the functions
-here are their plain numpy references (tests check that both agree).
+The numba kernels in :mod:`cloth_client.contact.cone_kernels` implement the same geometry;
+:func:`round_cone_reference` and :func:`penetration_reference` are their plain numpy references
+(tests check that both agree).
 """
 
 from __future__ import annotations
@@ -33,24 +34,14 @@ from numpy.typing import NDArray
 __all__ = [
     "CapsuleTrack",
     "capsules_near",
-    "check_backend",
     "interpolate_keys",
     "max_relative_travel",
-    "penetration_np",
-    "round_cone_np",
+    "penetration_reference",
+    "round_cone_reference",
 ]
 
 F64 = NDArray[np.float64]
 _TINY = 1e-12
-#: Implementations every kernel-backed function of the package offers.
-BACKENDS = ("numba", "numpy")
-
-
-def check_backend(backend: str) -> None:
-    """Raise ``ValueError`` unless ``backend`` is one of :data:`BACKENDS` (the numba kernel or its
-    plain numpy reference)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; use numba or numpy")
 
 
 @dataclass(frozen=True)
@@ -159,8 +150,9 @@ def capsules_near(track: CapsuleTrack, x: F64, reach: float) -> NDArray[np.bool_
     return out
 
 
-def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F64]:
-    """Signed distance, outward normal and axial parameter of points against round cones.
+def round_cone_reference(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F64]:
+    """Signed distance, outward normal and axial parameter of points against round cones (reference
+    of :func:`cloth_client.contact.cone_kernels.round_cone`, vectorised over points and capsules).
 
     Parameters
     ----------
@@ -217,8 +209,9 @@ def round_cone_np(p: F64, a: F64, b: F64, ra: F64, rb: F64) -> tuple[F64, F64, F
     return dist, normal, t
 
 
-def penetration_np(x: F64, a: F64, b: F64, radii: F64, free: NDArray[np.bool_]) -> F64:
-    """Depth (>= 0, metres) by which each particle lies inside the body, 0 for pinned particles.
+def penetration_reference(x: F64, a: F64, b: F64, radii: F64, free: NDArray[np.bool_]) -> F64:
+    """Depth (>= 0, metres) by which each particle lies inside the body, 0 for pinned particles
+    (reference of :func:`cloth_client.contact.cone_kernels.penetration`).
 
     Parameters
     ----------
@@ -232,6 +225,6 @@ def penetration_np(x: F64, a: F64, b: F64, radii: F64, free: NDArray[np.bool_]) 
     (N,) float64
         ``max(0, -min_c dist_c)``.
     """
-    d, _, _ = round_cone_np(x, a, b, radii[:, 0], radii[:, 1])
+    d, _, _ = round_cone_reference(x, a, b, radii[:, 0], radii[:, 1])
     depth: F64 = np.maximum(-d.min(axis=1), 0.0)
     return np.where(free, depth, 0.0)

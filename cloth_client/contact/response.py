@@ -1,4 +1,4 @@
-"""Cloth-vs-body contact response (numpy references of :mod:`cloth_client.contact._kernels`).
+"""Cloth-vs-body contact response (numpy references of :mod:`cloth_client.contact.response_kernels`).
 
 A particle closer than ``margin`` (the cloth's half thickness) to a capsule is projected onto the
 offset surface and the normal component of its velocity relative to the capsule surface is removed
@@ -7,7 +7,7 @@ velocity relative to it reduced by Coulomb friction ``mu * |dv_n|``; cloth squee
 body parts gets no friction (each would drag it its own way and tear it) but takes the velocity of
 the stoutest part it touches (a hand pressing a skirt against the hip slides over it, the cloth
 stays with the hip). In a crease narrower than twice the margin (two nearest surfaces facing each
-other) the clearance shrinks to half the gap (:func:`pinch_margin_np`), so the cloth fits in the
+other) the clearance shrinks to half the gap (:func:`pinch_margin_reference`), so the cloth fits in the
 gap instead of being ploughed along by the part that closes it; where the two overlap (no gap:
 a forearm pressed on the hip) it sits half-way through the overlap, at most :data:`PINCH_DEPTH`
 inside each, instead of being squeezed out to one side of the limb. Capsules
@@ -23,10 +23,11 @@ final strain limiting), so the state it hands on is outside the body wherever th
 A particle found inside a capsule past its axis from where it was at the start of the substep
 (carried along with the capsule) is put back on that side instead of being projected to the
 nearest surface, so a limb pressed into cloth that the strain limit holds back cannot pull it
-through itself. :func:`broad_phase_np` gathers each particle's candidate capsules once per substep.
+through itself. :func:`broad_phase_reference` gathers each particle's candidate capsules once per substep.
 
-The numba kernels implement the same operations; the functions here are their plain numpy
-references (tests check that both agree).
+The numba kernels (:mod:`cloth_client.contact.response_kernels`) implement the same operations;
+the functions here are their plain numpy references, ``<kernel>_reference`` (tests check that both
+agree). The constants are the kernels' own: one rule, two implementations.
 """
 
 from __future__ import annotations
@@ -34,8 +35,16 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from cloth_client.contact._kernels import STRADDLE_DEPTH, STRADDLE_SAMPLES  # one rule, two backends
-from cloth_client.contact.collision import round_cone_np
+from cloth_client.contact.collision import round_cone_reference
+from cloth_client.contact.response_kernels import (
+    COLLISION_PASSES,
+    CREASE_COS,
+    HIT_TOLERANCE,
+    PINCH_COS,
+    PINCH_DEPTH,
+    STRADDLE_DEPTH,
+    STRADDLE_SAMPLES,
+)
 
 __all__ = [
     "COLLISION_PASSES",
@@ -45,27 +54,14 @@ __all__ = [
     "PINCH_DEPTH",
     "STRADDLE_DEPTH",
     "STRADDLE_SAMPLES",
-    "broad_phase_np",
-    "collide_np",
-    "pinch_margin_np",
-    "release_straddles_np",
+    "broad_phase_reference",
+    "collide_reference",
+    "pinch_margin_reference",
+    "release_straddles_reference",
 ]
 
 F64 = NDArray[np.float64]
 _TINY = 1e-12
-
-
-#: Most projection passes over the capsules per particle (only particles moved in a pass get another).
-COLLISION_PASSES = 4
-#: Two contact normals with a cosine below this face each other: the cloth is in a crease.
-PINCH_COS = -0.3
-#: Two contact normals with a cosine below this (more than 90 degrees apart) but not below
-#: :data:`PINCH_COS` are the sides of a V: the clearance is half the gap there too, but not negative.
-CREASE_COS = 0.0
-#: Deepest (metres) pinched cloth may sit inside both of two overlapping facing body parts.
-PINCH_DEPTH = 0.009
-#: A particle closer than the clearance by less than this (metres) is on the surface, not in contact.
-HIT_TOLERANCE = 1e-9
 
 
 def _push(x: F64, v: F64, hit: NDArray[np.bool_], push: F64, n: F64, vs: F64) -> F64:
@@ -96,11 +92,12 @@ def _record(contact: F64, first: NDArray[np.int64], hit: NDArray[np.bool_], surf
     contact[hit & ~single, 3:6] = n[hit & ~single]
 
 
-def collide_np(
+def collide_reference(
     x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
     margin: float, friction: float, dt: float, floor: float | None, contact: F64, xprev: F64 | None = None,
 ) -> None:
-    """Resolve contacts of particles with capsules (end-of-substep endpoints) and the floor, in place.
+    """Resolve contacts of particles with capsules (end-of-substep endpoints) and the floor, in place
+    (reference of :func:`cloth_client.contact.response_kernels.collide`).
 
     Parameters
     ----------
@@ -130,26 +127,27 @@ def collide_np(
     """
     x0, v0 = x.copy(), v.copy()
     xp = x0 if xprev is None else xprev
-    pinched = _resolve_np(x, v, free, a0, b0, a1, b1, radii, np.full(len(x), margin), margin, friction, dt, floor,
-                          contact, xp)
+    pinched = _resolve_reference(x, v, free, a0, b0, a1, b1, radii, np.full(len(x), margin), margin, friction, dt,
+                                 floor, contact, xp)
     m = np.full(len(x), margin)
-    m[pinched] = pinch_margin_np(x0[pinched], a1, b1, radii, margin)
+    m[pinched] = pinch_margin_reference(x0[pinched], a1, b1, radii, margin)
     again = pinched & (m < margin)  # a crease: start again with the clearance the gap leaves
     if again.any():
         held = v[again]  # the stoutest touched part's velocity (set by the first resolve)
         x[again], v[again] = x0[again], v0[again]
         sub = np.zeros((int(again.sum()), 6))
         xs, vs = x[again], v[again]
-        _resolve_np(xs, vs, np.ones(len(xs), bool), a0, b0, a1, b1, radii, m[again], margin, friction, dt, floor, sub,
-                    xp[again])
+        _resolve_reference(xs, vs, np.ones(len(xs), bool), a0, b0, a1, b1, radii, m[again], margin, friction, dt,
+                           floor, sub, xp[again])
         x[again], v[again], contact[again] = xs, held, sub
 
 
-def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64, m: F64,
-                margin: float, friction: float, dt: float, floor: float | None, contact: F64,
+def _resolve_reference(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
+                       m: F64, margin: float, friction: float, dt: float, floor: float | None, contact: F64,
                 xprev: F64) -> NDArray[np.bool_]:
     """Projection passes with clearance ``m (N,)`` from the capsules and ``margin`` from the floor,
-    then friction or the held velocity; returns which particles were pinched (reference of ``K._resolve``)."""
+    then friction or the held velocity; returns which particles were pinched (reference of
+    ``response_kernels._resolve``)."""
     contact[:] = 0.0
     n = len(x)
     first = np.full(n, -1, dtype=np.int64)
@@ -174,13 +172,13 @@ def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F
     for _ in range(COLLISION_PASSES):
         moved = np.zeros_like(todo)
         for c in range(a1.shape[0]):
-            d, nc, t = round_cone_np(x, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+            d, nc, t = round_cone_reference(x, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
             hit = todo & (d[:, 0] < m - HIT_TOLERANCE)
             if not hit.any():
                 continue
-            # back to the side it came from if it went through the axis (reference of ``K._side``)
+            # back to the side it came from if it went through the axis (``response_kernels._side``)
             carried = xprev + (1.0 - t) * (a1[c] - a0[c]) + t * (b1[c] - b0[c])
-            dq, nq, tq = round_cone_np(carried, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+            dq, nq, tq = round_cone_reference(carried, a1[c:c + 1], b1[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
             back = hit & (dq[:, 0] > 0.0) & (np.einsum("ij,ij->i", nq[:, 0], nc[:, 0]) < 0.0)
             x[back] = carried[back]
             d[back], nc[back], t[back] = dq[back], nq[back], tq[back]
@@ -202,8 +200,10 @@ def _resolve_np(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64, a1: F
     return pinched
 
 
-def broad_phase_np(x: F64, free: NDArray[np.bool_], a: F64, b: F64, radii: F64, reach: float) -> NDArray[np.int64]:
-    """Candidate capsules of every particle as bit masks (reference of ``K.broad_phase``).
+def broad_phase_reference(x: F64, free: NDArray[np.bool_], a: F64, b: F64, radii: F64,
+                          reach: float) -> NDArray[np.int64]:
+    """Candidate capsules of every particle as bit masks (reference of
+    :func:`cloth_client.contact.response_kernels.broad_phase`).
 
     Parameters
     ----------
@@ -231,8 +231,9 @@ def broad_phase_np(x: F64, free: NDArray[np.bool_], a: F64, b: F64, radii: F64, 
     return out
 
 
-def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
-    """Clearance ``(N,)`` each particle can keep from the body (reference of ``K.pinch_margin``).
+def pinch_margin_reference(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
+    """Clearance ``(N,)`` each particle can keep from the body (reference of
+    :func:`cloth_client.contact.response_kernels.pinch_margin`).
 
     ``margin``, except in a crease: when the two nearest capsules within ``margin`` have normals
     facing each other (cosine below ``PINCH_COS``), half the gap between them; where they overlap
@@ -241,7 +242,7 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
     """
     if len(a) < 2:
         return np.full(len(x), margin)
-    d, nrm, _ = round_cone_np(x, a, b, radii[:, 0], radii[:, 1])
+    d, nrm, _ = round_cone_reference(x, a, b, radii[:, 0], radii[:, 1])
     order = np.argsort(d, axis=1, kind="stable")[:, :2]
     rows = np.arange(len(x))
     d1, d2 = d[rows, order[:, 0]], d[rows, order[:, 1]]
@@ -252,10 +253,10 @@ def pinch_margin_np(x: F64, a: F64, b: F64, radii: F64, margin: float) -> F64:
     return out
 
 
-def release_straddles_np(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: F64, trigger2: float, a: F64,
-                         b: F64, radii: F64, margin: float, opposed: float) -> int:
+def release_straddles_reference(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: F64, trigger2: float,
+                                a: F64, b: F64, radii: F64, margin: float, opposed: float) -> int:
     """Lift stretched springs that straddle a body part off it, in place (reference of
-    ``_contact_kernels.release_straddles``, which documents the rule).
+    :func:`cloth_client.contact.response_kernels.release_straddles`, which documents the rule).
 
     Parameters
     ----------
@@ -290,13 +291,13 @@ def release_straddles_np(x: F64, inv_mass: F64, springs: NDArray[np.int64], hi: 
         wi, wj = float(inv_mass[i]), float(inv_mass[j])
         if wi + wj <= 0.0:
             continue
-        dist, normal, _ = round_cone_np(x[i] + ts[:, None] * d, a, b, radii[:, 0], radii[:, 1])  # (S, C)
+        dist, normal, _ = round_cone_reference(x[i] + ts[:, None] * d, a, b, radii[:, 0], radii[:, 1])  # (S, C)
         flat = dist.T.ravel()  # capsule-major, as the kernel scans: the first deepest sample wins
         m = int(np.argmin(flat))
         if not flat[m] < -STRADDLE_DEPTH:
             continue
         c, k = divmod(m, STRADDLE_SAMPLES)
-        ends, en, _ = round_cone_np(x[[i, j]], a[c:c + 1], b[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
+        ends, en, _ = round_cone_reference(x[[i, j]], a[c:c + 1], b[c:c + 1], radii[c:c + 1, 0], radii[c:c + 1, 1])
         if (ends < 0.0).any():
             continue  # an end inside: collision moves that particle out
         if not float(en[0, 0] @ en[1, 0]) < opposed:

@@ -2,16 +2,17 @@
 
 A garment's pinned row (the cape's collar, the skirt's waistband) follows its joint frames; a body
 part moving over it (a shrug under the collar, a thigh in a crouch under the waistband) would put
-pins inside the body. :class:`cloth_client.avatar.capsules.AvatarKeys` moves them out with the numba
-kernels of :mod:`cloth_client.contact._kernels`, which document the rules; these functions are
-their references (``backend="numpy"``), held equal by ``tests/test_cloth_collision.py``:
+pins inside the body. :class:`cloth_client.avatar.capsules.AvatarKeys` finds and moves them with the
+numba kernels of :mod:`cloth_client.contact.seam_kernels`, which document the rules; these
+functions are their references, held equal by ``tests/cloth/test_collision.py``:
 
+* :func:`covered_reference` - which points lie within a reach of the body at some key;
 * :func:`push_out_reference` - every pin projected out of its nearest capsule, twice;
 * :func:`slide_seam_reference` - each body part's covered pins carried together along one
   direction, the move spread along the seam, pushed out, then the length pass;
 * :func:`keep_seam_length_reference` - the length pass: segments still longer than their rest
   length (plus a slack) shortened by Gauss-Seidel rounds, each followed by a projection of the
-  pins it moved (session 20).
+  pins it moved.
 """
 
 from __future__ import annotations
@@ -19,16 +20,17 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from cloth_client.contact._kernels import (
+from cloth_client.contact.collision import CapsuleTrack, round_cone_reference
+from cloth_client.contact.seam_kernels import (
     SEAM_LENGTH_ROUNDS,
     SEAM_LENGTH_SLACK,
     SEAM_MIN_COS,
     SEAM_RING_STRIDE,
     SEAM_SHARED_PASSES,
 )
-from cloth_client.contact.collision import CapsuleTrack, round_cone_np
 
-__all__ = ["check_seam_rest", "keep_seam_length_reference", "push_out_reference", "slide_seam_reference"]
+__all__ = ["check_seam_rest", "covered_reference", "keep_seam_length_reference", "push_out_reference",
+           "slide_seam_reference"]
 
 F64 = NDArray[np.float64]
 
@@ -54,14 +56,26 @@ def check_seam_rest(n_pins: int, rest: F64 | None, wrap: bool) -> F64:
     return seg
 
 
+def covered_reference(track: CapsuleTrack, points: F64, margin: float | F64) -> NDArray[np.bool_]:
+    """Which of ``points (K + 1, P, 3)`` lie within ``margin`` (metres, or one per capsule ``(C,)``) of
+    the capsules of ``track`` at their key, ``(P,)`` (true if at any key): reference of
+    :func:`cloth_client.contact.seam_kernels.covered`."""
+    out = np.zeros(points.shape[1], dtype=bool)
+    for k in range(points.shape[0]):
+        d, _, _ = round_cone_reference(points[k], track.a[k], track.b[k], track.radii[:, 0], track.radii[:, 1])
+        out |= (d < margin).any(axis=1)
+    return out
+
+
 def push_out_reference(track: CapsuleTrack, points: F64, clearance: float) -> F64:
     """``points (K + 1, P, 3)`` moved to at least ``clearance`` outside the capsules of ``track`` at
-    their key: two projections along the normal of the nearest capsule (``_contact_kernels.push_out``)."""
+    their key: two projections along the normal of the nearest capsule (reference of
+    :func:`cloth_client.contact.seam_kernels.push_out`)."""
     out = np.array(points, dtype=np.float64)
     radii = track.radii
     for k in range(len(out)):
         for _ in range(2):
-            d, n, _t = round_cone_np(out[k], track.a[k], track.b[k], radii[:, 0], radii[:, 1])
+            d, n, _t = round_cone_reference(out[k], track.a[k], track.b[k], radii[:, 0], radii[:, 1])
             c = np.argmin(d, axis=1)
             depth = clearance - d[np.arange(len(c)), c]
             inside = depth > 0
@@ -72,13 +86,14 @@ def push_out_reference(track: CapsuleTrack, points: F64, clearance: float) -> F6
 def slide_seam_reference(track: CapsuleTrack, points: F64, clearance: float, spread: int, wrap: bool,
                          rest: F64) -> F64:
     """``points (K + 1, P, 3)``, pins in seam order, slid out of the body parts covering them
-    (``_contact_kernels.slide_seam``); ``rest (S,)`` the segment rest lengths (empty: no length pass)."""
+    (reference of :func:`cloth_client.contact.seam_kernels.slide_seam`); ``rest (S,)`` the segment rest
+    lengths (empty: no length pass)."""
     start = np.array(points, dtype=np.float64)
     out = start.copy()
     r0, r1 = track.radii[:, 0], track.radii[:, 1]
     for k in range(len(out)):
         a, b = track.a[k], track.b[k]
-        d, n, _t = round_cone_np(start[k], a, b, r0, r1)  # (P, C)
+        d, n, _t = round_cone_reference(start[k], a, b, r0, r1)  # (P, C)
         near = np.argmin(d, axis=1)
         depth = clearance - d[np.arange(len(near)), near]
         for c in np.unique(near[depth > 0.0]):
@@ -89,7 +104,7 @@ def slide_seam_reference(track: CapsuleTrack, points: F64, clearance: float, spr
                 continue
             u /= norm
             for _ in range(SEAM_SHARED_PASSES):
-                dd, nn, _t = round_cone_np(out[k, sel], a[c:c + 1], b[c:c + 1], r0[c:c + 1], r1[c:c + 1])
+                dd, nn, _t = round_cone_reference(out[k, sel], a[c:c + 1], b[c:c + 1], r0[c:c + 1], r1[c:c + 1])
                 step = np.maximum(clearance - dd[:, 0], 0.0) / np.maximum(nn[:, 0] @ u, SEAM_MIN_COS)
                 out[k, sel] += step[:, None] * u
     out = push_out_reference(track, out, clearance)
@@ -109,11 +124,12 @@ def slide_seam_reference(track: CapsuleTrack, points: F64, clearance: float, spr
     return out
 
 
-def keep_seam_length_reference(track: CapsuleTrack, points: F64, clearance: float, rest: F64, rounds: int,
-                               slack: float) -> F64:
+def keep_seam_length_reference(track: CapsuleTrack, points: F64, clearance: float, rest: F64,
+                               rounds: int = SEAM_LENGTH_ROUNDS, slack: float = SEAM_LENGTH_SLACK) -> F64:
     """``points (K + 1, P, 3)``, a seam's pins in order, with every segment longer than
     ``(1 + slack) rest`` shortened and the pins kept ``clearance`` outside the body
-    (``_contact_kernels.keep_seam_length``; ``rest (S,)``, ``S = P`` closes the ring)."""
+    (reference of :func:`cloth_client.contact.seam_kernels.keep_seam_length`; ``rest (S,)``, ``S = P``
+    closes the ring)."""
     out = np.array(points, dtype=np.float64)
     n_pins, n_seg = out.shape[1], len(rest)
     r0, r1 = track.radii[:, 0], track.radii[:, 1]
@@ -135,7 +151,7 @@ def keep_seam_length_reference(track: CapsuleTrack, points: F64, clearance: floa
             if not moved.any():
                 break
             p = np.flatnonzero(moved)
-            dist, n, _t = round_cone_np(out[k, p], track.a[k], track.b[k], r0, r1)
+            dist, n, _t = round_cone_reference(out[k, p], track.a[k], track.b[k], r0, r1)
             c = np.argmin(dist, axis=1)
             depth = clearance - dist[np.arange(len(p)), c]
             inside = depth > 0.0

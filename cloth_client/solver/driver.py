@@ -50,8 +50,8 @@ from cloth_client.avatar.capsules import (
     rigid_root_delta,
 )
 from cloth_client.avatar.limb_clearance import LIMB_CLEARANCE
-from cloth_client.contact.collision import CapsuleTrack, round_cone_np
-from cloth_client.solver import _kernels as K
+from cloth_client.contact.collision import CapsuleTrack, round_cone_reference
+from cloth_client.contact.cone_kernels import penetration
 from cloth_client.solver.cloth import (
     ClothModel,
     ClothParams,
@@ -84,9 +84,9 @@ class DriverConfig:
     ``ghost_clear`` when what is left sunk stops / starts pushing the cloth again; a slid seam's
     move spread along ``seam_spread`` metres of the seam either side (``AvatarKeys.slide_seam``,
     rounded to whole pins: 8 at 2,000 particles; 0: none), and with ``keep_seam_length`` what the
-    slide still stretched shortened again (``AvatarKeys.keep_seam_length``; False: session 19's
-    slide); with ``slide_under_arms`` a forearm or hand on a waistband slides it instead of
-    releasing the pins it covers (``ClothDriver._seam_action``; False: session 20's rule)."""
+    slide still stretched shortened again (``AvatarKeys.keep_seam_length``; False: the slide alone);
+    with ``slide_under_arms`` a forearm or hand on a waistband slides it instead of releasing the
+    pins it covers (``ClothDriver._seam_action``; False: every covering body part releases them)."""
 
     key_dt: float = 1.0 / 240.0
     dress_s: float = 0.6
@@ -378,7 +378,8 @@ class ClothDriver:
         if g.seam != "release":
             return out
         a, b = capsule_endpoints(self.body, g.pose)
-        d, _, _ = round_cone_np(g.rest[g.pin_index], a, b, self.body.capsule_radii[:, 0], self.body.capsule_radii[:, 1])
+        d, _, _ = round_cone_reference(g.rest[g.pin_index], a, b, self.body.capsule_radii[:, 0],
+                                       self.body.capsule_radii[:, 1])
         out[d.min(axis=0) > self.config.seam_reach] = self.config.seam_reach
         return out
 
@@ -453,7 +454,7 @@ class ClothDriver:
         assert self.state is not None
         a, b = self._body_end if self._body_end is not None else avatar_capsules(self.body, pose,
                                                                                  self.config.limb_clearance)
-        K.penetration(self.state.x, a, b, self.body.capsule_radii, self._free.astype(np.float64), self._depth)
+        penetration(self.state.x, a, b, self.body.capsule_radii, self._free.astype(np.float64), self._depth)
         inside = self._depth > 0.0
         n_in = int(inside.sum())
         deepest = float(self._depth.max()) if n_in else 0.0

@@ -7,17 +7,30 @@ import numpy as np
 import pytest
 
 from cloth_client.avatar.capsules import AvatarKeys, capsule_endpoints, pose_keys
-from cloth_client.contact._kernels import SEAM_LENGTH_SLACK
-from cloth_client.contact.collision import CapsuleTrack, max_relative_travel, penetration_np, round_cone_np
+from cloth_client.contact import cone_kernels as C
+from cloth_client.contact import response_kernels as K
+from cloth_client.contact.collision import (
+    CapsuleTrack,
+    max_relative_travel,
+    penetration_reference,
+    round_cone_reference,
+)
 from cloth_client.contact.response import (
     PINCH_COS,
     PINCH_DEPTH,
-    broad_phase_np,
-    collide_np,
-    pinch_margin_np,
-    release_straddles_np,
+    broad_phase_reference,
+    collide_reference,
+    pinch_margin_reference,
+    release_straddles_reference,
 )
-from cloth_client.solver import _kernels as K
+from cloth_client.contact.seam import (
+    check_seam_rest,
+    covered_reference,
+    keep_seam_length_reference,
+    push_out_reference,
+    slide_seam_reference,
+)
+from cloth_client.contact.seam_kernels import SEAM_LENGTH_SLACK
 from cloth_client.solver.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.solver.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
 from protocol.kinematics import fk
@@ -38,7 +51,8 @@ def _collide(backend: str, x: np.ndarray, v: np.ndarray, a0: np.ndarray, b0: np.
                   0.0 if floor is None else floor, floor is not None, contact,
                   np.full(len(x), K.ALL_CAPSULES), x.copy(), 0.0, xp)
     else:
-        collide_np(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact, xp)
+        collide_reference(x, v, np.ones(len(x), bool), a0, b0, a1, b1, radii, margin, friction, dt, floor, contact,
+                          xp)
     return contact
 
 
@@ -54,23 +68,23 @@ def test_round_cone_distance_matches_support_points() -> None:
     use_a = (w @ a[0] + ra[0]) >= (w @ b[0] + rb[0])
     support = np.where(use_a[:, None], a[0] + ra[0] * w, b[0] + rb[0] * w)
     for h in (0.03, 0.0, -0.01):
-        d, n, _ = round_cone_np(support + h * w, a, b, ra, rb)
+        d, n, _ = round_cone_reference(support + h * w, a, b, ra, rb)
         np.testing.assert_allclose(d[:, 0], h, atol=1e-9)
         np.testing.assert_allclose(n[:, 0], w, atol=1e-7)
         for k in range(0, 500, 50):  # the numba scalar version agrees
-            dk, nx, ny, nz, _ = K.round_cone(*(support[k] + h * w[k]), a[0], b[0], ra[0], rb[0])
+            dk, nx, ny, nz, _ = C.round_cone(*(support[k] + h * w[k]), a[0], b[0], ra[0], rb[0])
             assert dk == pytest.approx(d[k, 0], abs=1e-12)
             np.testing.assert_allclose([nx, ny, nz], n[k, 0], atol=1e-9)
 
 
 def test_round_cone_degenerate_cases() -> None:
     # one sphere swallows the other: just the big sphere
-    d, n, t = round_cone_np(np.array([[0.0, 0.5, 0.0]]), A, np.array([[0.05, 0.0, 0.0]]), np.array([0.2]),
-                            np.array([0.05]))
+    d, n, t = round_cone_reference(np.array([[0.0, 0.5, 0.0]]), A, np.array([[0.05, 0.0, 0.0]]), np.array([0.2]),
+                                   np.array([0.05]))
     assert d[0, 0] == pytest.approx(0.3) and t[0, 0] == 0.0
     np.testing.assert_allclose(n[0, 0], [0, 1, 0], atol=1e-12)
     # a point on the axis inside gets a unit normal
-    d, n, _ = round_cone_np(np.array([[0.25, 0.0, 0.0]]), A, B, np.array([0.1]), np.array([0.1]))
+    d, n, _ = round_cone_reference(np.array([[0.25, 0.0, 0.0]]), A, B, np.array([0.1]), np.array([0.1]))
     assert d[0, 0] == pytest.approx(-0.1) and np.linalg.norm(n[0, 0]) == pytest.approx(1.0)
 
 
@@ -110,7 +124,7 @@ def test_floor_and_pinch_between_two_surfaces(backend: str) -> None:
     contact = _collide(backend, x, v, a, b, a, b, r, 0.0, 0.5, 0.01, floor=0.0)
     assert x[1, 1] == pytest.approx(0.0) and v[1, 1] == 0.0 and v[1, 0] < 0.3  # floor with friction
     np.testing.assert_allclose(contact[1], [0, 1, 0, 0, 0, 0], atol=1e-12)
-    d, _, _ = round_cone_np(x[:1], a, b, r[:, 0], r[:, 1])
+    d, _, _ = round_cone_reference(x[:1], a, b, r[:, 0], r[:, 1])
     assert d[0, 0] >= -1e-3 and x[0, 1] >= -1e-9  # worked out of both (to within a millimetre)
     assert np.linalg.norm(contact[0, :3]) > 0.5 and np.linalg.norm(contact[0, 3:]) > 0.5  # two surfaces
     np.testing.assert_allclose(v[0], 0.0, atol=1e-12)  # pinched: held by the (still) capsule, no sliding
@@ -134,7 +148,7 @@ def test_cloth_in_a_narrow_gap_fits_and_stays_with_the_stouter_part(backend: str
         x = np.array([[0.05, start, 0.0]])
         v = np.array([[1.0, 0.5, 0.0]])
         _collide(backend, x, v, a0, b0, a1, b1, radii, margin, 0.3, dt)
-        d, _, _ = round_cone_np(x, a1, b1, radii[:, 0], radii[:, 1])
+        d, _, _ = round_cone_reference(x, a1, b1, radii[:, 0], radii[:, 1])
         np.testing.assert_allclose(d[0], [gap_d, gap_d], atol=1e-9)
         np.testing.assert_allclose(x[0], [0.05, gap_d + 0.10, 0.0], atol=1e-9)
         np.testing.assert_allclose(v[0], 0.0, atol=1e-12)
@@ -146,9 +160,9 @@ def test_cloth_in_a_narrow_gap_fits_and_stays_with_the_stouter_part(backend: str
                             (a1, b1, radii, [-0.3, 0.09, -0.04], [0.3, 0.13, 0.04])):
         pts = rng.uniform(lo, hi, size=(3000, 3))
         geo = np.empty((len(a), 13))
-        K.capsule_geometry(a, b, r, margin, geo)
+        C.capsule_geometry(a, b, r, margin, geo)
         got = np.array([K.pinch_margin(*p, geo, 0.5 * (a + b), margin) for p in pts])
-        ref = pinch_margin_np(pts, a, b, r, margin)
+        ref = pinch_margin_reference(pts, a, b, r, margin)
         np.testing.assert_allclose(got, ref, atol=1e-12)
     assert (ref < margin).sum() > 100 and (ref == margin).sum() > 100
 
@@ -175,10 +189,10 @@ def test_pinch_clearance_is_half_the_gap_down_to_the_pinch_depth(backend: str) -
         p = np.array([[0.05, y, 0.0]])
         if backend == "numba":
             geo = np.empty((2, 13))
-            K.capsule_geometry(a, b, radii, margin, geo)
+            C.capsule_geometry(a, b, radii, margin, geo)
             got = K.pinch_margin(*p[0], geo, 0.5 * (a + b), margin)
         else:
-            got = float(pinch_margin_np(p, a, b, radii, margin)[0])
+            got = float(pinch_margin_reference(p, a, b, radii, margin)[0])
         assert got == pytest.approx(expected, abs=1e-12)
     # the thin capsule sunk sideways into the thick one (axis at z = 0.1): near where the surfaces
     # cross, both are within the margin but their normals are 76 degrees apart: no crease (a crease
@@ -186,9 +200,9 @@ def test_pinch_clearance_is_half_the_gap_down_to_the_pinch_depth(backend: str) -
     a = np.array([[-0.3, 0.0, 0.0], [-0.3, 0.0, 0.1]])
     b = a + np.array([0.6, 0.0, 0.0])
     p = np.array([[0.0, 0.033, 0.097]])
-    d, nrm, _ = round_cone_np(p, a, b, radii[:, 0], radii[:, 1])
+    d, nrm, _ = round_cone_reference(p, a, b, radii[:, 0], radii[:, 1])
     assert np.all(d[0] < margin) and nrm[0, 0] @ nrm[0, 1] > PINCH_COS
-    assert pinch_margin_np(p, a, b, radii, margin)[0] == margin
+    assert pinch_margin_reference(p, a, b, radii, margin)[0] == margin
     # a V: the thin capsule beside the thick one, their surfaces crossing at 100 degrees (normals
     # cos -0.17); a particle 2 mm outside the crossing gets half the gap, one 2 mm inside gets 0
     # (never a clearance inside the body in a V, only in a crease beyond PINCH_COS)
@@ -201,15 +215,15 @@ def test_pinch_clearance_is_half_the_gap_down_to_the_pinch_depth(backend: str) -
     bis /= np.linalg.norm(bis)
     for sign, floor in ((1.0, None), (-1.0, 0.0)):
         p = (cross + sign * 0.002 * bis)[None]
-        d, nrm, _ = round_cone_np(p, a, b, radii[:, 0], radii[:, 1])
+        d, nrm, _ = round_cone_reference(p, a, b, radii[:, 0], radii[:, 1])
         cos = nrm[0, 0] @ nrm[0, 1]
         assert PINCH_COS < cos < K.CREASE_COS and np.all(d[0] < margin), (cos, d)
         expected = 0.5 * (d[0, 0] + d[0, 1]) if floor is None else floor
         assert 0.0 <= expected < margin
         geo = np.empty((2, 13))
-        K.capsule_geometry(a, b, radii, margin, geo)
+        C.capsule_geometry(a, b, radii, margin, geo)
         assert K.pinch_margin(*p[0], geo, 0.5 * (a + b), margin) == pytest.approx(expected, abs=1e-12)
-        assert pinch_margin_np(p, a, b, radii, margin)[0] == pytest.approx(expected, abs=1e-12)
+        assert pinch_margin_reference(p, a, b, radii, margin)[0] == pytest.approx(expected, abs=1e-12)
 
 
 def test_penetration_depth_kernel_matches_numpy(rng: np.random.Generator) -> None:
@@ -219,8 +233,8 @@ def test_penetration_depth_kernel_matches_numpy(rng: np.random.Generator) -> Non
     x = rng.uniform([-0.4, 0.0, -0.3], [0.4, 1.8, 0.3], size=(2000, 3))
     free = rng.random(2000) > 0.1
     out = np.empty(2000)
-    K.penetration(x, a, b, body.capsule_radii, free.astype(float), out)
-    ref = penetration_np(x, a, b, body.capsule_radii, free)
+    C.penetration(x, a, b, body.capsule_radii, free.astype(float), out)
+    ref = penetration_reference(x, a, b, body.capsule_radii, free)
     np.testing.assert_allclose(out, ref, atol=1e-12)
     assert (ref > 0).sum() > 50 and np.all(ref[~free] == 0)
 
@@ -248,7 +262,7 @@ def test_fast_swing_does_not_tunnel_through_cloth() -> None:
     near = (np.abs(x0[:, 0] - 0.17) < 0.025) & (x0[:, 1] > 1.06) & (x0[:, 1] < 1.29)
     assert near.sum() >= 4
     assert np.all(good.x[near, 2] > 0.2 - 0.04)  # carried along: ahead of or beside the bar, not behind
-    d, _, _ = round_cone_np(good.x, a[-1], b[-1], r[:, 0], r[:, 1])
+    d, _, _ = round_cone_reference(good.x, a[-1], b[-1], r[:, 0], r[:, 1])
     assert d.min() > 0.0
     assert np.all(bad.x[near, 2] < 0.1)  # left behind: the bar jumped over them
 
@@ -285,13 +299,13 @@ def test_covered_pins_are_released_and_collide() -> None:
     assert covered[:2].all() and not covered[2:].any()
     model = build_model(g)
     out = step(initial_state(model), model, keys.track, buried, 1 / 30, released=covered)
-    d, _, _ = round_cone_np(out.x[g.pin_index[:2]], keys.track.a[-1], keys.track.b[-1], body.capsule_radii[:, 0],
-                            body.capsule_radii[:, 1])
+    d, _, _ = round_cone_reference(out.x[g.pin_index[:2]], keys.track.a[-1], keys.track.b[-1], body.capsule_radii[:, 0],
+                                   body.capsule_radii[:, 1])
     assert d.min() > 0.0  # released pins are free particles: pushed out, not held inside
     np.testing.assert_allclose(out.x[g.pin_index[2:]], buried[-1, 2:], atol=1e-12)
     pushed = keys.push_out(buried, 0.006)
-    d, _, _ = round_cone_np(pushed[0], keys.track.a[0], keys.track.b[0], body.capsule_radii[:, 0],
-                            body.capsule_radii[:, 1])
+    d, _, _ = round_cone_reference(pushed[0], keys.track.a[0], keys.track.b[0], body.capsule_radii[:, 0],
+                                   body.capsule_radii[:, 1])
     assert d.min() >= 0.006 - 1e-9
 
 
@@ -300,7 +314,7 @@ def test_skirt_waistband_clears_kicks_and_bends_and_hangs_inside_the_arms() -> N
     g = make_skirt(body, 600)
     pose = standing_pose(body)
     a, b = capsule_endpoints(body, pose)
-    d, _, _ = round_cone_np(g.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
+    d, _, _ = round_cone_reference(g.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
     assert d.min() > 0.006  # the rest shape clears every capsule, arms included: hands swing outside
     hips = [CAPSULE_INDEX[n] for n in ("pelvis", "l_thigh", "r_thigh")]
     assert d[g.pin_index][:, hips].min() >= REST_CLEARANCE  # in 3D: the hip spheres reach the waist's height
@@ -349,7 +363,7 @@ def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
     margin, slack = 0.006, 0.02
     cand, xb = np.empty(len(x), np.int64), np.empty_like(x)
     K.broad_phase(x, free.astype(float), a, b, r, margin + slack, cand, xb)
-    np.testing.assert_array_equal(cand, broad_phase_np(x, free, a, b, r, margin + slack))
+    np.testing.assert_array_equal(cand, broad_phase_reference(x, free, a, b, r, margin + slack))
     np.testing.assert_array_equal(xb, x)
     assert 0 < (cand != 0).sum() < len(x) and (cand & (cand - 1) != 0).sum() > 50  # several capsules at joints
     # then the particles move (half of them further than the slack) and the body moves a little
@@ -364,7 +378,7 @@ def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
                   mask, ref, slack - 0.003, x)  # the capsules moved 3 mm: the particles may move the rest
         outs.append((xx, vv, contact))
     xn, vn, cn = x1.copy(), v.copy(), np.zeros((len(x), 6))
-    collide_np(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn, x)
+    collide_reference(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn, x)
     for xx, vv, contact in outs:
         np.testing.assert_allclose(xx, xn, atol=1e-12)
         np.testing.assert_allclose(vv, vn, atol=1e-9)
@@ -420,12 +434,12 @@ def test_slide_seam_kernel_matches_numpy(spread: int, wrap: bool, keep: bool) ->
     rest = 0.8 * _segments(pts, wrap)[0] if keep else None
     before = pts.copy()
     got = keys.slide_seam(pts, 0.006, spread, wrap, rest)
-    ref = keys.slide_seam(pts, 0.006, spread, wrap, rest, backend="numpy")
+    ref = slide_seam_reference(keys.track, pts, 0.006, spread, wrap, check_seam_rest(pts.shape[1], rest, wrap))
     np.testing.assert_array_equal(pts, before)
     assert (np.linalg.norm(ref - pts, axis=-1) > 1e-9).sum() > 40
     np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
     if keep:
-        plain = keys.slide_seam(pts, 0.006, spread, wrap, backend="numpy")
+        plain = slide_seam_reference(keys.track, pts, 0.006, spread, wrap, np.zeros(0))
         assert np.abs(ref - plain).max() > 0.01  # the length pass moved the pins
     with pytest.raises(ValueError, match="spread"):
         keys.slide_seam(pts, 0.006, -1)
@@ -443,7 +457,7 @@ def test_keep_seam_length_kernel_matches_numpy(wrap: bool) -> None:
     rest = seg * np.random.default_rng(5).uniform(0.7, 1.0, len(seg))
     before = pts.copy()
     got = keys.keep_seam_length(pts, 0.006, rest)
-    ref = keys.keep_seam_length(pts, 0.006, rest, backend="numpy")
+    ref = keep_seam_length_reference(keys.track, pts, 0.006, rest)
     np.testing.assert_array_equal(pts, before)
     np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
     assert np.abs(ref - pts).max() > 0.01
@@ -480,15 +494,20 @@ def test_slid_seam_keeps_its_length_under_a_body_part() -> None:
 
     radial = keys.push_out(seam, 0.006)
     assert clearance(radial) >= 0.006 - 1e-9 and worst_strain(radial) > 0.4
+    def slide(backend: str, spread: int, rest: np.ndarray | None = None) -> np.ndarray:
+        if backend == "numba":
+            return keys.slide_seam(seam, 0.006, spread, rest=rest)
+        return slide_seam_reference(keys.track, seam, 0.006, spread, False, np.zeros(0) if rest is None else rest)
+
     for backend in ("numba", "numpy"):
-        slid = keys.slide_seam(seam, 0.006, 8, backend=backend)
+        slid = slide(backend, 8)
         assert clearance(slid) >= 0.006 - 1e-9
         assert worst_strain(slid) < 0.1, backend
-        assert worst_strain(keys.slide_seam(seam, 0.006, 0, backend=backend)) > 0.1  # the spread matters
+        assert worst_strain(slide(backend, 0)) > 0.1  # the spread matters
         # the length pass (given the rest lengths) shortens what the slide left stretched: the spread
         # slide's 3.5 % to within its slack, the unspread slide's step (over 10 %) by half
         for spread, bound in ((8, SEAM_LENGTH_SLACK + 0.005), (0, 0.6 * worst_strain(keys.slide_seam(seam, 0.006, 0)))):
-            kept = keys.slide_seam(seam, 0.006, spread, rest=np.full(40, 0.01), backend=backend)
+            kept = slide(backend, spread, np.full(40, 0.01))
             assert clearance(kept) >= 0.006 - 1e-9
             plain = worst_strain(keys.slide_seam(seam, 0.006, spread))
             assert worst_strain(kept) < min(bound, plain), (backend, spread)
@@ -502,7 +521,7 @@ def test_covered_kernel_matches_numpy() -> None:
     reach = np.full(len(body.capsule_radii), 0.006)
     reach[::3] = 0.04
     for m in (0.006, reach):
-        got, ref = keys.covered(pts, m), keys.covered(pts, m, backend="numpy")
+        got, ref = keys.covered(pts, m), covered_reference(keys.track, pts, m)
         np.testing.assert_array_equal(got, ref)
         assert 20 < got.sum() < 480
 
@@ -511,15 +530,15 @@ def test_push_out_kernel_matches_numpy() -> None:
     """The numba push-out of pin targets equals the numpy reference, and its result clears the body."""
     body, keys, pts = _bent_keys_and_points(5, 400)
     before = pts.copy()
-    got, ref = keys.push_out(pts, 0.006), keys.push_out(pts, 0.006, backend="numpy")
+    got, ref = keys.push_out(pts, 0.006), push_out_reference(keys.track, pts, 0.006)
     np.testing.assert_array_equal(pts, before)  # the input is not modified
     moved = np.linalg.norm(ref - pts, axis=-1) > 1e-9
     assert 40 < moved.sum() < 1100  # many points started inside the body, many outside
     np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
     with pytest.raises(ValueError, match="shape"):
         keys.push_out(pts[:2], 0.006)  # a key count other than the track's
-    clear = [round_cone_np(got[k], keys.track.a[k], keys.track.b[k], body.capsule_radii[:, 0],
-                           body.capsule_radii[:, 1])[0].min(axis=1) >= 0.006 - 1e-9 for k in range(3)]
+    clear = [round_cone_reference(got[k], keys.track.a[k], keys.track.b[k], body.capsule_radii[:, 0],
+                                  body.capsule_radii[:, 1])[0].min(axis=1) >= 0.006 - 1e-9 for k in range(3)]
     assert np.mean(clear) > 0.97  # two passes clear nearly all (a point deep in a joint may need more)
 
 
@@ -534,7 +553,7 @@ def test_skirt_hip_ease_widens_the_hips_but_stays_inside_the_arms() -> None:
     assert (r1 - r0).max() > 0.015  # some of the yoke gets the whole ease
     np.testing.assert_array_equal(g1.rest[g1.pin_index], g0.rest[g0.pin_index])  # the waistband is the same
     a, b = capsule_endpoints(body, standing_pose(body))
-    d, _, _ = round_cone_np(g1.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
+    d, _, _ = round_cone_reference(g1.rest, a, b, body.capsule_radii[:, 0], body.capsule_radii[:, 1])
     assert d.min() > 0.006  # the hands still hang outside the cloth
 
 
@@ -574,7 +593,7 @@ OPPOSED = ClothParams().straddle_opposed
 def test_cloth_draped_round_a_limb_is_not_lifted(rng: np.random.Generator, backend: str) -> None:
     """A stretched spring whose chord cuts into a limb with both ends on the same side of it (cloth
     lying over an arm, ends 80 degrees apart round the axis) is left to collision and the strain
-    limit; with the side test off (``opposed`` > 1) it would be lifted (session 17's pumping)."""
+    limit; with the side test off (``opposed`` > 1) it would be lifted (and pumped along the limb)."""
     a, b = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.4, 0.0]])
     radii = np.array([[0.04, 0.04]])
     pts = []
@@ -587,7 +606,7 @@ def test_cloth_draped_round_a_limb_is_not_lifted(rng: np.random.Generator, backe
     springs = np.arange(len(x), dtype=np.int64).reshape(-1, 2)
     hi = np.linalg.norm(x[1::2] - x[::2], axis=1) / 1.3
     inv_mass = np.ones(len(x))
-    fn = K.release_straddles if backend == "numba" else release_straddles_np
+    fn = K.release_straddles if backend == "numba" else release_straddles_reference
     xb = x.copy()
     assert fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, 0.006, OPPOSED) == 0
     np.testing.assert_array_equal(xb, x)
@@ -603,7 +622,7 @@ def test_straddled_spring_is_lifted_off_the_limb(rng: np.random.Generator) -> No
     out = {}
     for backend in ("numba", "numpy"):
         xb = x.copy()
-        fn = K.release_straddles if backend == "numba" else release_straddles_np
+        fn = K.release_straddles if backend == "numba" else release_straddles_reference
         out[backend] = (fn(xb, inv_mass, springs, hi, 1.0, a, b, radii, margin, OPPOSED), xb)
     (n, got), (n_ref, ref) = out["numba"], out["numpy"]
     assert n == n_ref == 12  # kinds 0 and 1 of 24
@@ -614,7 +633,7 @@ def test_straddled_spring_is_lifted_off_the_limb(rng: np.random.Generator) -> No
         moved = not np.allclose(got[[i, j]], x[[i, j]])
         assert moved == (k % 4 in (0, 1)), k
         if moved:
-            depth = [round_cone_np(c[i] * (1 - ts) + c[j] * ts, a, b, radii[:, 0], radii[:, 1])[0].min()
+            depth = [round_cone_reference(c[i] * (1 - ts) + c[j] * ts, a, b, radii[:, 0], radii[:, 1])[0].min()
                      for c in (x, got)]
             if k == 0:  # one end pinned: the chord turns about it, lifted at the deepest sample only
                 assert depth[0] < -0.02 and depth[1] > 0.2 * depth[0]

@@ -13,11 +13,12 @@ from cloth_client.avatar.capsules import (
     Continuity,
     capsule_endpoints,
     interpolate_poses,
+    interpolate_poses_reference,
     is_discontinuity,
     pose_keys,
     rigid_root_delta,
 )
-from cloth_client.contact.collision import penetration_np, round_cone_np
+from cloth_client.contact.collision import penetration_reference, round_cone_reference
 from cloth_client.solver.cloth import ClothParams, build_model, initial_state, step, structural_strain, tethers_held
 from cloth_client.solver.driver import ClothDriver, DriverConfig
 from cloth_client.solver.garment import DEFAULT_DENSITY, Garment, grid_topology, make_cape, make_garment, make_skirt
@@ -57,7 +58,7 @@ def _check(driver: ClothDriver, pose: np.ndarray, max_strain: float = 0.10) -> N
     assert driver.state is not None
     assert np.all(np.isfinite(driver.state.x)) and np.all(np.isfinite(driver.state.v))
     a, b = capsule_endpoints(driver.body, pose)
-    depth = penetration_np(driver.state.x, a, b, driver.body.capsule_radii, driver.model.inv_mass > 0)
+    depth = penetration_reference(driver.state.x, a, b, driver.body.capsule_radii, driver.model.inv_mass > 0)
     assert depth.max() < 0.01
     assert structural_strain(driver.model, driver.state.x).max() < max_strain
 
@@ -204,7 +205,7 @@ def test_garment_is_sized_to_the_body_and_clears_it(kind: str) -> None:
         g = make_garment(kind, body, 1500)
         assert abs(g.n_particles - 1500) < 200
         a, b = capsule_endpoints(body, g.pose)
-        depth = penetration_np(g.rest, a, b, body.capsule_radii, np.ones(g.n_particles, bool))
+        depth = penetration_reference(g.rest, a, b, body.capsule_radii, np.ones(g.n_particles, bool))
         assert depth.max() == 0.0
         area = 0.5 * np.linalg.norm(np.cross(g.rest[g.triangles[:, 1]] - g.rest[g.triangles[:, 0]],
                                              g.rest[g.triangles[:, 2]] - g.rest[g.triangles[:, 0]]), axis=1).sum()
@@ -422,8 +423,8 @@ def test_waistband_rolls_with_the_hips_against_the_chest() -> None:
     c = CAPSULE_INDEX["pelvis"]
 
     def hip_gap(p: np.ndarray) -> float:
-        d, _, _ = round_cone_np(p, keys.track.a[1, c:c + 1], keys.track.b[1, c:c + 1], BODY.capsule_radii[c:c + 1, 0],
-                                BODY.capsule_radii[c:c + 1, 1])
+        d, _, _ = round_cone_reference(p, keys.track.a[1, c:c + 1], keys.track.b[1, c:c + 1],
+                                       BODY.capsule_radii[c:c + 1, 0], BODY.capsule_radii[c:c + 1, 1])
         return float(d.min())
 
     margin = ClothParams().margin
@@ -489,9 +490,8 @@ def test_interpolation_kernel_matches_numpy() -> None:
         p1 = p0 + rng.normal(0.0, 0.05 if k % 2 else 2.0, POSE_SIZE)
         if k % 5 == 0:
             p1[3:12] = p0[3:12]  # unchanged joints: the linear branch
-        np.testing.assert_allclose(interpolate_poses(p0, p1, s), interpolate_poses(p0, p1, s, backend="numpy"),
+        np.testing.assert_allclose(interpolate_poses(p0, p1, s), interpolate_poses_reference(p0, p1, s),
                                    atol=1e-12, rtol=0)
-    with pytest.raises(ValueError, match="backend"):
-        interpolate_poses(p0, p1, s, backend="cuda")
-    with pytest.raises(ValueError, match="shape"):
-        interpolate_poses(p0[:-3], p1, s)
+    for interpolate in (interpolate_poses, interpolate_poses_reference):
+        with pytest.raises(ValueError, match="shape"):
+            interpolate(p0[:-3], p1, s)

@@ -15,9 +15,11 @@ from cloth_client.avatar.limb_clearance import (
     MAX_PUSH,
     clear_limbs,
     clear_limbs_track,
+    clear_limbs_track_reference,
     limb_overlap,
+    limb_overlap_reference,
 )
-from cloth_client.contact.collision import penetration_np
+from cloth_client.contact.collision import penetration_reference
 from cloth_client.solver.cloth import structural_strain
 from cloth_client.solver.driver import ClothDriver, DriverConfig
 from cloth_client.solver.garment import make_skirt
@@ -26,6 +28,8 @@ from protocol.skeleton import CAPSULE_INDEX, default_body, standing_pose
 BODY = default_body()
 R = BODY.capsule_radii
 L_FORE, L_HAND = list(LIMBS).index(CAPSULE_INDEX["l_forearm"]), list(LIMBS).index(CAPSULE_INDEX["l_hand"])
+#: The numba rule and its plain numpy reference, by the name tests are parametrised with.
+TRACKS = {"numba": clear_limbs_track, "numpy": clear_limbs_track_reference}
 
 
 def _swing(t0: float, t1: float, rate: float) -> tuple[np.ndarray, np.ndarray]:
@@ -39,8 +43,8 @@ def test_kernel_matches_the_numpy_reference() -> None:
     rng = np.random.default_rng(3)
     a = a + rng.normal(0.0, 0.01, a.shape)  # capsules no longer joined: the rule must not care
     b = b + rng.normal(0.0, 0.01, b.shape)
-    an, bn = clear_limbs(a, b, R, backend="numba")
-    ar, br = clear_limbs(a, b, R, backend="numpy")
+    an, bn = clear_limbs(a, b, R)
+    ar, br, _ = clear_limbs_track_reference(a, b, R)
     bn_all = bn
     assert np.abs(an - a).max() > 0.05  # the motion does need clearing
     np.testing.assert_allclose(an, ar, atol=1e-9)
@@ -50,21 +54,20 @@ def test_kernel_matches_the_numpy_reference() -> None:
     np.testing.assert_allclose(a1, an[40], atol=1e-12)
     np.testing.assert_allclose(b1, bn[40], atol=1e-12)
     for backend in ("numba", "numpy"):  # the memory out of the kernel and out of the reference agree
-        _, _, m = clear_limbs_track(a[:40], b[:40], R, backend=backend)
+        _, _, m = TRACKS[backend](a[:40], b[:40], R)
         np.testing.assert_allclose(m, memory, atol=1e-9)
     # a run continued from its memory (its first key given), and a lower push limit that skips a
     # side while it carries a correction: both backends alike
-    runs = {backend: [clear_limbs_track(a[39:], b[39:], R, memory, backend=backend, first_given=True),
-                      clear_limbs_track(a, b, R, max_push=0.10, backend=backend)] for backend in ("numba", "numpy")}
+    runs = {backend: [track(a[39:], b[39:], R, memory, first_given=True), track(a, b, R, max_push=0.10)]
+            for backend, track in TRACKS.items()}
     for (an, bn, mn), (ar, br, mr) in zip(runs["numba"], runs["numpy"], strict=True):
         np.testing.assert_allclose(an, ar, atol=1e-9)
         np.testing.assert_allclose(bn, br, atol=1e-9)
         np.testing.assert_allclose(mn, mr, atol=1e-9)
     np.testing.assert_allclose(runs["numba"][0][1][1:], bn_all[40:], atol=1e-12)
-    with pytest.raises(ValueError, match="shape"):
-        clear_limbs_track(a, b, R, np.zeros((6, 3)))
-    with pytest.raises(ValueError, match="backend"):
-        clear_limbs(a, b, R, backend="cuda")
+    for track in TRACKS.values():
+        with pytest.raises(ValueError, match="shape"):
+            track(a, b, R, np.zeros((6, 3)))
 
 
 def test_a_sunk_limb_is_turned_out_with_every_length_kept() -> None:
@@ -164,7 +167,7 @@ def test_skirt_under_a_forearm_held_in_the_hips() -> None:
     d = runs[LIMB_CLEARANCE]
     assert d.state is not None and not d._ghost.any()
     a, b = avatar_capsules(BODY, pose)
-    depth = penetration_np(d.state.x, a, b, R, d.model.inv_mass > 0)
+    depth = penetration_reference(d.state.x, a, b, R, d.model.inv_mass > 0)
     assert depth.max() < 0.005
     assert structural_strain(d.model, d.state.x).max() < 0.10
     assert runs[None]._ghost.any()
@@ -232,18 +235,17 @@ def test_limb_overlap_kernel_matches_numpy() -> None:
         p = pose + rng.normal(0.0, 0.7, pose.shape)
         p[:3] = pose[:3]
         a, b = capsule_endpoints(BODY, p)
-        got, ref = limb_overlap(a, b, R), limb_overlap(a, b, R, backend="numpy")
+        got, ref = limb_overlap(a, b, R), limb_overlap_reference(a, b, R)
         np.testing.assert_allclose(got, ref, atol=1e-12, rtol=0)
         depths.append(ref)
     assert (np.array(depths) > 0).any() and (np.array(depths) < 0).any()
-    with pytest.raises(ValueError, match="backend"):
-        limb_overlap(a, b, R, backend="cuda")
     with pytest.raises(ValueError, match="limb_overlap"):  # what the kernel (no bounds checks) would misread
         limb_overlap(a[:3], b[:3], R)
     with pytest.raises(ValueError, match="out of range"):
         limb_overlap(a[:3], b[:3], R[:3])
-    with pytest.raises(ValueError, match="samples"):
-        limb_overlap(a, b, R, samples=0)
+    for overlap in (limb_overlap, limb_overlap_reference):
+        with pytest.raises(ValueError, match="samples"):
+            overlap(a, b, R, samples=0)
 
 
 @pytest.mark.parametrize("backend", ["numba", "numpy"])
@@ -264,7 +266,7 @@ def test_an_upper_arm_pressed_into_the_side_turns_out_about_the_shoulder(backend
         a2[cap] += new_elbow - elbow
         b2[cap] += new_elbow - elbow
     assert limb_overlap(a2, b2, R, uarm)[0] > 0.0  # sunk into the trunk
-    ac, bc = clear_limbs(a2, b2, R, backend=backend)
+    ac, bc, _ = TRACKS[backend](a2, b2, R)
     # clear of the trunk; a little further where the sunk forearm's own push turned the elbow too
     assert -0.04 < limb_overlap(ac, bc, R, uarm)[0] <= -LIMB_CLEARANCE + 1e-3
     np.testing.assert_array_equal(ac[up], shoulder)
@@ -273,6 +275,6 @@ def test_an_upper_arm_pressed_into_the_side_turns_out_about_the_shoulder(backend
     np.testing.assert_allclose(bc[fore], ac[hand], atol=1e-12)
     assert bc[up, 0] > new_elbow[0] + 0.01  # the elbow went out, away from the ribs
     assert np.linalg.norm(bc[up] - elbow) < 0.10  # not past the standing pose
-    ar, br = clear_limbs(a, b, R, backend=backend)  # the standing arm (4 cm off) is left alone
+    ar, br, _ = TRACKS[backend](a, b, R)  # the standing arm (4 cm off) is left alone
     np.testing.assert_array_equal(ar, a)
     np.testing.assert_array_equal(br, b)

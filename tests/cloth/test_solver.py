@@ -7,30 +7,36 @@ import numpy as np
 import pytest
 
 from cloth_client.contact.collision import CapsuleTrack
-from cloth_client.solver import _kernels as K
+from cloth_client.solver import force_kernels as F
+from cloth_client.solver import strain_kernels as S
 from cloth_client.solver.cloth import (
     ClothParams,
     build_model,
     energy,
     initial_state,
     step,
+    step_reference,
     structural_strain,
     tethers_held,
 )
 from cloth_client.solver.garment import make_cape, make_sheet, make_skirt
 from cloth_client.solver.reference import (
-    drag_forces_np,
-    line_limit_np,
-    long_range_attach_np,
-    ring_limit_np,
-    spring_forces_np,
-    strain_limit_np,
-    worst_stretch2_np,
+    drag_forces_reference,
+    integrate_reference,
+    line_limit_reference,
+    long_range_attach_reference,
+    ring_limit_reference,
+    spring_forces_reference,
+    spring_strain_reference,
+    strain_limit_reference,
+    worst_stretch2_reference,
 )
 from protocol.skeleton import default_body
 
 EMPTY = CapsuleTrack(np.zeros((2, 0, 3)), np.zeros((2, 0, 3)), np.zeros((0, 2)))
 FREE = dict(floor=None, air_density=0.0)  # no floor, no drag
+#: The numba step and its plain numpy reference, by the name tests are parametrised with.
+STEPS = {"numba": step, "numpy": step_reference}
 
 
 def _pins(g, n_keys: int = 2) -> np.ndarray:  # type: ignore[no-untyped-def]
@@ -47,9 +53,9 @@ def test_spring_force_hand_computed(fn: str) -> None:
     rest, k, kd = np.array([1.0, 2.0]), np.array([10.0, 3.0]), np.array([0.5, 0.0])
     if fn == "numba":
         f = np.zeros_like(x)
-        K.spring_forces(x, v, springs, rest, k, kd, f)
+        F.spring_forces(x, v, springs, rest, k, kd, f)
     else:
-        f = spring_forces_np(x, v, springs, rest, k, kd)
+        f = spring_forces_reference(x, v, springs, rest, k, kd)
     # spring 0: stretched by 0.5 -> 5 N, separating at 2 m/s along the axis -> +1 N damping = 6 N
     # spring 1: exactly at rest (length 2) but v1 - v2 = (2, 0, 0) is perpendicular -> no force
     np.testing.assert_allclose(f, [[6.0, 0, 0], [-6.0, 0, 0], [0, 0, 0]], atol=1e-12)
@@ -57,7 +63,8 @@ def test_spring_force_hand_computed(fn: str) -> None:
 
 def test_compressed_spring_pushes_apart() -> None:
     x = np.array([[0.0, 0.0, 0.0], [0.0, 0.6, 0.0]])
-    f = spring_forces_np(x, np.zeros_like(x), np.array([[0, 1]]), np.array([1.0]), np.array([2.0]), np.array([0.0]))
+    f = spring_forces_reference(x, np.zeros_like(x), np.array([[0, 1]]), np.array([1.0]), np.array([2.0]),
+                                np.array([0.0]))
     # 0.4 m short at 2 N/m: 0.8 N pushing particle 0 (below) down and particle 1 up
     np.testing.assert_allclose(f, [[0, -0.8, 0], [0, 0.8, 0]], atol=1e-12)
 
@@ -69,7 +76,7 @@ def test_semi_implicit_euler_hand_computed() -> None:
     inv_mass = np.array([2.0, 0.0])  # particle 1 is pinned
     g, dt, damp = np.array([0.0, -9.81, 0.0]), 0.01, 1.0 / (1.0 + 0.5 * 0.01)
     xp = np.empty_like(x)
-    K.integrate(x, v, f, inv_mass, g, damp, dt, xp)
+    F.integrate(x, v, f, inv_mass, g, damp, dt, xp)
     v_expected = (np.array([0.5, 0.0, -1.0]) + dt * (np.array([0.4, 0.0, 0.0]) + g)) * damp
     np.testing.assert_allclose(v[0], v_expected, rtol=1e-13)
     np.testing.assert_allclose(x[0], [1.0, 2.0, 3.0] + dt * v_expected, rtol=1e-13)
@@ -86,8 +93,7 @@ def test_free_fall_matches_discrete_formula(backend: str) -> None:
     model = build_model(g, ClothParams(damping_ratio=0.0, mass_damping=0.0, **FREE))
     state = initial_state(model)
     n, dt = 7, 0.021
-    out = step(state, model, EMPTY, _pins(g), dt, released=np.ones(len(g.pin_index), bool), n_substeps=n,
-               backend=backend)
+    out = STEPS[backend](state, model, EMPTY, _pins(g), dt, released=np.ones(len(g.pin_index), bool), n_substeps=n)
     h = dt / n
     np.testing.assert_allclose(out.v[:, 1], -9.81 * h * n, rtol=1e-9)
     np.testing.assert_allclose(out.x[:, 1], g.rest[:, 1] - 9.81 * h * h * n * (n + 1) / 2, rtol=1e-9)
@@ -157,14 +163,14 @@ def test_extra_rounds_run_while_a_spring_is_stretched_beyond_the_trigger(backend
         model = build_model(g, ClothParams(extra_rounds=extra, air_density=0.0))
         state = initial_state(model)
         for _ in range(60):
-            state = step(state, model, EMPTY, _pins(g), 1 / 60, backend=backend)
-        calm.append(step(state, model, EMPTY, _pins(g), 1 / 60, n_substeps=2, backend=backend).x)
+            state = STEPS[backend](state, model, EMPTY, _pins(g), 1 / 60)
+        calm.append(STEPS[backend](state, model, EMPTY, _pins(g), 1 / 60, n_substeps=2).x)
         strains = []
         for shift in (0.3, 0.4, 0.5):
             for n_sub in (1, 2):
                 jerk = _pins(g)
                 jerk[1] += [shift, 0.0, 0.0]
-                jerked = step(state, model, EMPTY, jerk, 1 / 60, n_substeps=n_sub, backend=backend)
+                jerked = STEPS[backend](state, model, EMPTY, jerk, 1 / 60, n_substeps=n_sub)
                 strains.append(structural_strain(model, jerked.x).max())
         worst.append(max(strains))
     assert worst[0] > 0.085  # over the 8 % trigger without them
@@ -193,58 +199,80 @@ def _perturbed(model, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray,
 def test_force_kernels_match_numpy(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     x, v, _ = _perturbed(model, rng)
     f = np.zeros_like(x)
-    K.spring_forces(x, v, model.springs, model.rest, model.k, model.kd, f)
-    np.testing.assert_allclose(f, spring_forces_np(x, v, model.springs, model.rest, model.k, model.kd), atol=1e-12)
+    F.spring_forces(x, v, model.springs, model.rest, model.k, model.kd, f)
+    ref = spring_forces_reference(x, v, model.springs, model.rest, model.k, model.kd)
+    np.testing.assert_allclose(f, ref, atol=1e-12)
     f[:] = 0.0
     wind = np.array([1.0, 0.0, -2.0])
-    K.drag_forces(x, v, model.garment.triangles, 0.6, wind, np.empty_like(x), f)
-    np.testing.assert_allclose(f, drag_forces_np(x, v, model.garment.triangles, 0.6, wind), atol=1e-12)
+    F.drag_forces(x, v, model.garment.triangles, 0.6, wind, np.empty_like(x), f)
+    np.testing.assert_allclose(f, drag_forces_reference(x, v, model.garment.triangles, 0.6, wind), atol=1e-12)
+
+
+def test_integrate_kernel_matches_numpy(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    """Semi-implicit Euler of the free particles: the kernel (damping as a factor) and the reference
+    (damping as a division) agree to rounding; pinned particles stay, and both return the old positions."""
+    x, v, _ = _perturbed(model, rng)
+    f = rng.normal(0.0, 0.01, x.shape)
+    gravity, c, dt = np.array([0.0, -9.81, 0.0]), 0.3, 1 / 240
+    xk, vk, xp = x.copy(), v.copy(), np.empty_like(x)
+    F.integrate(xk, vk, f, model.inv_mass, gravity, 1.0 / (1.0 + c * dt), dt, xp)
+    xr, vr = x.copy(), v.copy()
+    xp_ref = integrate_reference(xr, vr, f, model.inv_mass, gravity, c, dt)
+    np.testing.assert_allclose(xk, xr, atol=1e-14, rtol=0)
+    np.testing.assert_allclose(vk, vr, atol=1e-12, rtol=0)
+    np.testing.assert_array_equal(xp, x)
+    np.testing.assert_array_equal(xp_ref, x)
+    pinned = model.inv_mass == 0
+    assert pinned.any() and np.array_equal(xk[pinned], x[pinned]) and np.array_equal(vk[pinned], v[pinned])
+    assert np.abs(xk - x).max() > 1e-4  # the free particles did move
 
 
 def test_constraint_kernels_match_numpy(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     x, _, contact = _perturbed(model, rng)
     g, p = model.garment, model.params
     a, b = x.copy(), x.copy()
-    K.long_range_attach(a, model.inv_mass, g.anchor, model.reach * 0.97)
-    long_range_attach_np(b, model.inv_mass, g.anchor, model.reach * 0.97)
+    S.long_range_attach(a, model.inv_mass, g.anchor, model.reach * 0.97)
+    long_range_attach_reference(b, model.inv_mass, g.anchor, model.reach * 0.97)
     np.testing.assert_allclose(a, b, atol=1e-12)
     # each kernel from identical inputs: chained, rounding could flip which constraints are active
     for lines, rest in ((model.lines_v, model.rest_v), (model.lines_h, model.rest_h)):
         b = a.copy()
-        K.line_limit(a, model.inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
-        line_limit_np(b, model.inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
+        S.line_limit(a, model.inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
+        line_limit_reference(b, model.inv_mass, lines, rest, p.max_stretch, p.max_compression, contact)
         np.testing.assert_allclose(a, b, atol=1e-12)
     rings = (model.lines_s, model.rest_s)
     before = a.copy()
     if model.garment.wrap:  # the rings of the perturbed cloth, before the row solves brought them in
         before[:] = x
     a, b = before.copy(), before.copy()
-    K.ring_limit(a, model.inv_mass, *rings, p.max_stretch, p.max_compression, contact)
-    ring_limit_np(b, model.inv_mass, *rings, p.max_stretch, p.max_compression, contact)
+    S.ring_limit(a, model.inv_mass, *rings, p.max_stretch, p.max_compression, contact)
+    ring_limit_reference(b, model.inv_mass, *rings, p.max_stretch, p.max_compression, contact)
     np.testing.assert_allclose(a, b, atol=1e-12)
     assert (np.abs(a - before).max() > 1e-3) == model.garment.wrap  # rings solved (a cape has none)
     b = a.copy()
-    K.strain_limit(a, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, 3, contact)
-    strain_limit_np(b, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 3, contact)
+    S.strain_limit(a, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, 3, contact)
+    strain_limit_reference(b, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, g.limit_batches, 3,
+                           contact)
     np.testing.assert_allclose(a, b, atol=1e-12)
     assert np.abs(a - x).max() > 1e-3  # the test did exercise the constraints
-    worst = K._worst_stretch2(x, model.lim_springs, model.lim_hi, model.inv_mass)
+    worst = S.worst_stretch2(x, model.lim_springs, model.lim_hi, model.inv_mass)
     assert worst > 1.0
-    np.testing.assert_allclose(worst, worst_stretch2_np(x, model.lim_springs, model.lim_hi, model.inv_mass), rtol=1e-12)
+    np.testing.assert_allclose(worst, worst_stretch2_reference(x, model.lim_springs, model.lim_hi, model.inv_mass),
+                               rtol=1e-12)
     # springs between two pins are left out of the trigger (no round can shorten them)
     pinned = np.zeros_like(model.inv_mass)
-    assert K._worst_stretch2(x, model.lim_springs, model.lim_hi, pinned) == 0.0
-    assert worst_stretch2_np(x, model.lim_springs, model.lim_hi, pinned) == 0.0
+    assert S.worst_stretch2(x, model.lim_springs, model.lim_hi, pinned) == 0.0
+    assert worst_stretch2_reference(x, model.lim_springs, model.lim_hi, pinned) == 0.0
     ends = model.lim_springs[np.argmax(np.linalg.norm(x[model.lim_springs[:, 1]] - x[model.lim_springs[:, 0]], axis=1)
                                        / model.lim_hi)]
     held = model.inv_mass.copy()
     held[ends] = 0.0  # the worst spring's two ends pinned: the next worst counts
-    got = K._worst_stretch2(x, model.lim_springs, model.lim_hi, held)
+    got = S.worst_stretch2(x, model.lim_springs, model.lim_hi, held)
     free = held[model.lim_springs].sum(axis=1) > 0
     ratio = (np.linalg.norm(x[model.lim_springs[:, 1]] - x[model.lim_springs[:, 0]], axis=1) / model.lim_hi) ** 2
     assert not free.all() and got <= worst
     np.testing.assert_allclose(got, ratio[free].max(), rtol=1e-12)
-    np.testing.assert_allclose(got, worst_stretch2_np(x, model.lim_springs, model.lim_hi, held), rtol=1e-12)
+    np.testing.assert_allclose(got, worst_stretch2_reference(x, model.lim_springs, model.lim_hi, held), rtol=1e-12)
 
 
 def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
@@ -252,7 +280,7 @@ def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Gen
     contact = np.zeros((len(x), 6))
     contact[:, 1] = 1.0  # every particle rests on a floor below it
     y0 = x[:, 1].copy()
-    K.strain_limit(x, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, 4, contact)
+    S.strain_limit(x, model.inv_mass, model.lim_springs, model.lim_lo, model.lim_hi, 4, contact)
     assert np.all(x[:, 1] >= y0 - 1e-12)
 
 
@@ -266,7 +294,7 @@ def test_line_solve_slides_a_particle_held_by_a_surface_in_one_pass(fn: str) -> 
     lines, rest = np.array([[0, 1]]), np.array([[0.1]])
     contact = np.zeros((2, 6))
     contact[1, 1] = -1.0  # the surface lies above particle 1: it may not move up
-    (K.line_limit if fn == "numba" else line_limit_np)(x, inv_mass, lines, rest, 0.03, 0.1, contact)
+    (S.line_limit if fn == "numba" else line_limit_reference)(x, inv_mass, lines, rest, 0.03, 0.1, contact)
     assert x[1, 1] == pytest.approx(-0.08, abs=1e-12)  # nothing into the surface
     assert np.linalg.norm(x[1]) == pytest.approx(0.103, abs=0.002)  # without it: 0.111 (8 % over)
 
@@ -287,8 +315,8 @@ def test_ring_solve_cuts_each_ring_at_its_slackest_spring(fn: str) -> None:
     rings = np.arange(3 * m).reshape(3, m)
     rest = np.tile(length / 1.06, (3, 1))
     rest[np.arange(3), slack_at] = length[slack_at] / 0.90  # 10 % slack
-    (K.ring_limit if fn == "numba" else ring_limit_np)(x, np.ones(3 * m), rings, rest, 0.03, 0.2,
-                                                      np.zeros((3 * m, 6)))
+    (S.ring_limit if fn == "numba" else ring_limit_reference)(x, np.ones(3 * m), rings, rest, 0.03, 0.2,
+                                                             np.zeros((3 * m, 6)))
     for r in range(3):
         ring = x[rings[r]]
         strain = np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1) / rest[r] - 1.0
@@ -299,8 +327,8 @@ def test_ring_solve_cuts_each_ring_at_its_slackest_spring(fn: str) -> None:
     rest = length / 1.06
     rest[5] = length[5] / 0.90
     order = (8 + 1 + np.arange(m)) % m  # the chain that starts after spring 8 (particles 8 -> 9)
-    (K.line_limit if fn == "numba" else line_limit_np)(x, np.ones(m), order[None], rest[order[:-1]][None], 0.03,
-                                                      0.2, np.zeros((m, 6)))
+    (S.line_limit if fn == "numba" else line_limit_reference)(x, np.ones(m), order[None], rest[order[:-1]][None],
+                                                             0.03, 0.2, np.zeros((m, 6)))
     assert np.linalg.norm(x[9] - x[8]) / rest[8] - 1.0 > 0.10
 
 
@@ -314,8 +342,8 @@ def test_whole_step_matches_numpy_reference() -> None:
     state = initial_state(model, g.rest + rng.normal(0, 0.004, g.rest.shape))
     state.v[:] = rng.normal(0, 0.3, state.v.shape)
     pins = _pins(g, 3) + np.array([0.0, 0.01, 0.02])[:, None, None] * np.array([1.0, 0.0, 0.0])
-    a = step(state, model, EMPTY, pins, 1 / 60, n_substeps=4, backend="numba")
-    b = step(state, model, EMPTY, pins, 1 / 60, n_substeps=4, backend="numpy")
+    a = step(state, model, EMPTY, pins, 1 / 60, n_substeps=4)
+    b = step_reference(state, model, EMPTY, pins, 1 / 60, n_substeps=4)
     np.testing.assert_allclose(a.x, b.x, atol=1e-10)
     np.testing.assert_allclose(a.v, b.v, atol=1e-7)
     # with pins let go and the attachments moved to the held ones (every particle is tethered)
@@ -323,13 +351,13 @@ def test_whole_step_matches_numpy_reference() -> None:
     released[:3] = True
     tight = build_model(g, ClothParams(floor=None, max_stretch=0.5, max_compression=0.5, extra_above=0.5))
     tethers = tethers_held(tight, released)
-    a = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4, backend="numba")
-    b = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4, backend="numpy")
+    a = step(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4)
+    b = step_reference(state, tight, EMPTY, pins, 1 / 60, released=released, tethers=tethers, n_substeps=4)
     np.testing.assert_allclose(a.x, b.x, atol=1e-10)
     # without constraint projections the substeps are smooth, so several stay in step too
     loose = build_model(g, ClothParams(floor=None, limit_iterations=0, final_sweeps=0))
-    a = step(state, loose, EMPTY, pins, 1 / 60, n_substeps=6, backend="numba")
-    b = step(state, loose, EMPTY, pins, 1 / 60, n_substeps=6, backend="numpy")
+    a = step(state, loose, EMPTY, pins, 1 / 60, n_substeps=6)
+    b = step_reference(state, loose, EMPTY, pins, 1 / 60, n_substeps=6)
     np.testing.assert_allclose(a.x, b.x, atol=1e-10)
 
 
@@ -364,12 +392,11 @@ def test_bad_inputs_are_rejected() -> None:
     g = make_sheet(3, 3)
     model = build_model(g)
     state = initial_state(model)
-    with pytest.raises(ValueError, match="dt"):
-        step(state, model, EMPTY, _pins(g), 0.0)
-    with pytest.raises(ValueError, match="pin_keys"):
-        step(state, model, EMPTY, _pins(g)[:, :1], 0.01)
-    with pytest.raises(ValueError, match="backend"):
-        step(state, model, EMPTY, _pins(g), 0.01, backend="cuda")
+    for stepper in (step, step_reference):
+        with pytest.raises(ValueError, match="dt"):
+            stepper(state, model, EMPTY, _pins(g), 0.0)
+        with pytest.raises(ValueError, match="pin_keys"):
+            stepper(state, model, EMPTY, _pins(g)[:, :1], 0.01)
     with pytest.raises(ValueError, match="extra_above"):  # extra rounds would run on every substep
         build_model(g, ClothParams(extra_above=0.01))
     with pytest.raises(ValueError, match="extra_rounds"):
@@ -379,8 +406,10 @@ def test_bad_inputs_are_rejected() -> None:
 def test_strain_kernel_matches_numpy(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     """The numba strain of the structural springs equals the numpy reference on a crumpled cloth."""
     x = model.garment.rest + rng.normal(0.0, 0.01, model.garment.rest.shape)
-    got, ref = structural_strain(model, x), structural_strain(model, x, backend="numpy")
+    g = model.garment
+    got, ref = structural_strain(model, x), spring_strain_reference(x, g.structural, g.structural_rest)
     np.testing.assert_allclose(got, ref, atol=1e-12, rtol=0)
     assert ref.min() < 0.0 < ref.max()
-    with pytest.raises(ValueError, match="backend"):
-        structural_strain(model, x, backend="cuda")
+    out = np.empty(len(model.springs))  # the kernel on every spring family at once
+    F.spring_strain(x, model.springs, model.rest, out)
+    np.testing.assert_allclose(out, spring_strain_reference(x, model.springs, model.rest), atol=1e-12, rtol=0)

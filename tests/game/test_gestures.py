@@ -45,7 +45,10 @@ def test_near_misses_are_not_recognised(name: str) -> None:
 
 @pytest.mark.parametrize(("name", "loose", "gesture"), [
     ("neg_wave_joined", RecognizerConfig(fire_ring=FireRingParams(raise_seen=False)), Gesture.FIRE_RING),
-    ("neg_arm_circle", RecognizerConfig(strike=StrikeParams(min_drop_fwd=-math.inf)), Gesture.STRIKE),
+    ("neg_arm_circle", RecognizerConfig(strike=StrikeParams(min_drop_fwd=-math.inf, max_loop_out=None)),
+     Gesture.STRIKE),
+    ("neg_fire_ring_lowered", RecognizerConfig(fire_ring=FireRingParams(max_lower_s=None, max_drop_s=math.inf)),
+     Gesture.FIRE_RING),
 ])
 def test_each_near_miss_is_rejected_by_its_rule(name: str, loose: RecognizerConfig, gesture: Gesture) -> None:
     """Without the rule the near-miss would be recognised (so the rule, not luck, rejects it)."""

@@ -1,24 +1,11 @@
-"""Numba kernels for the cloth solver's hot loops.
+"""Numba kernels of the solver's strain limiting: long-range attachments, line and ring solves,
+Gauss-Seidel sweeps, all contact-aware, and the stretch that triggers extra rounds.
 
-Each kernel has a plain numpy reference (:mod:`cloth_client.solver.reference`: spring, drag, integration,
-long-range attachments, line solves, Gauss-Seidel strain limiting and the whole substep;
-:mod:`cloth_client.contact.collision` and :mod:`cloth_client.contact.response`: round-cone distance, broad phase,
-collision response, penetration - the contact kernels themselves live in
-:mod:`cloth_client.contact._kernels`) and a test checks that both give the same numbers. The
-kernels work in place on ``float64`` arrays and never allocate per particle; :func:`simulate_substeps`
-runs all substeps of one cloth step without returning to Python. Small helpers called per particle
-or per spring are compiled inline into their callers (a call with array arguments costs more than
-the work they do); in hot loops they take numbers rather than arrays where they can (an array
-handed to an inlined helper with branches or loops costs an atomic reference-count increment and
-decrement per call, as much as the arithmetic of a particle).
-
-Speed-ups are kept bit-identical (re-running the quality sweep is expensive), which takes more than
-the same formulas: with the ``contract`` and ``reassoc`` fast-math flags of :data:`jit_kernel`,
-a product and the sum using it become one FMA only when both are in one basic block, and the order
-in which a sum of products is added may follow the order in which its operands were defined (loads
-in a loop body, loop-carried values). Hence the shapes kept below: moves multiplied before the
-branch that adds them, contact normals read inside :func:`_slide`'s loop. Compare any change bitwise
-with the previous kernels, on particles with two contact normals too.
+:mod:`cloth_client.solver.reference` describes the passes and holds their plain numpy references
+(``*_reference``); tests hold both equal. The contact-aware moves keep shapes that the fast-math
+flags of :mod:`cloth_client._jit` make matter for bit-identity: moves multiplied before the branch
+that adds them, contact normals read inside :func:`_slide`'s loop. Compare any change bitwise with
+the previous kernels, on particles with two contact normals too.
 """
 
 from __future__ import annotations
@@ -28,56 +15,14 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from cloth_client.contact._kernels import (
-    ALL_CAPSULES,
-    BROAD_SLACK,
-    COLLISION_PASSES,
-    CREASE_COS,
-    PINCH_COS,
-    PINCH_DEPTH,
-    broad_phase,
-    capsule_geometry,
-    collide,
-    inline_kernel,
-    jit_kernel,
-    penetration,
-    pinch_margin,
-    release_straddles,
-    round_cone,
-    round_cone_geo,
-)
+from cloth_client._jit import inline_kernel as _inline
+from cloth_client._jit import jit_kernel as _jit
+from cloth_client.solver.force_kernels import spring_vector
 
-__all__ = [
-    "ALL_CAPSULES",
-    "BROAD_SLACK",
-    "COLLISION_PASSES",
-    "CREASE_COS",
-    "PINCH_COS",
-    "PINCH_DEPTH",
-    "SLIDE_FLOOR",
-    "broad_phase",
-    "capsule_geometry",
-    "collide",
-    "drag_forces",
-    "integrate",
-    "interpolate_poses",
-    "line_limit",
-    "long_range_attach",
-    "penetration",
-    "pinch_margin",
-    "ring_limit",
-    "round_cone",
-    "round_cone_geo",
-    "simulate_substeps",
-    "spring_forces",
-    "spring_strain",
-    "strain_limit",
-]
+__all__ = ["SLIDE_FLOOR", "line_limit", "long_range_attach", "ring_limit", "strain_limit", "worst_stretch2"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
-_jit = jit_kernel
-_inline = inline_kernel
 
 #: Least share of a constraint's unconstrained mobility the sliding line solve credits it with: a
 #: spring's diagonal entry is ``sum w (u . P u)`` (``P``: onto the tangent space of the surfaces a
@@ -88,75 +33,10 @@ _inline = inline_kernel
 SLIDE_FLOOR = 0.25
 
 
-@_inline
-def _spring_vector(x: F64, springs: I64, s: int) -> tuple[int, int, float, float, float]:  # pragma: no cover
-    """Ends ``i, j`` of spring ``s`` and the vector ``x[j] - x[i]``."""
-    i = springs[s, 0]
-    j = springs[s, 1]
-    return i, j, x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
-
-
-@_jit
-def spring_forces(x: F64, v: F64, springs: I64, rest: F64, k: F64, kd: F64, f: F64) -> None:  # pragma: no cover
-    """Add Hooke + axial damping forces of every spring to ``f (N, 3)``."""
-    for s in range(springs.shape[0]):
-        i, j, dx, dy, dz = _spring_vector(x, springs, s)
-        length = math.sqrt(dx * dx + dy * dy + dz * dz)
-        inv = 1.0 / length if length > 1e-12 else 0.0  # branch-free: a zero-length spring exerts nothing
-        ux, uy, uz = dx * inv, dy * inv, dz * inv
-        dvn = (v[j, 0] - v[i, 0]) * ux + (v[j, 1] - v[i, 1]) * uy + (v[j, 2] - v[i, 2]) * uz
-        fs = k[s] * (length - rest[s]) + kd[s] * dvn
-        f[i, 0] += fs * ux
-        f[i, 1] += fs * uy
-        f[i, 2] += fs * uz
-        f[j, 0] -= fs * ux
-        f[j, 1] -= fs * uy
-        f[j, 2] -= fs * uz
-
-
-@_jit
-def drag_forces(x: F64, v: F64, tris: I64, coeff: float, wind: F64, av: F64, f: F64) -> None:  # pragma: no cover
-    """Add quadratic normal air drag ``-coeff * A (v_n |v_n|) n`` to ``f``; ``av`` is scratch (N, 3)."""
-    av[:] = 0.0
-    for t in range(tris.shape[0]):
-        i, j, k = tris[t, 0], tris[t, 1], tris[t, 2]
-        e1x, e1y, e1z = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
-        e2x, e2y, e2z = x[k, 0] - x[i, 0], x[k, 1] - x[i, 1], x[k, 2] - x[i, 2]
-        cx = (e1y * e2z - e1z * e2y) / 6.0
-        cy = (e1z * e2x - e1x * e2z) / 6.0
-        cz = (e1x * e2y - e1y * e2x) / 6.0
-        for q in (i, j, k):
-            av[q, 0] += cx
-            av[q, 1] += cy
-            av[q, 2] += cz
-    for i in range(x.shape[0]):
-        area = math.sqrt(av[i, 0] ** 2 + av[i, 1] ** 2 + av[i, 2] ** 2)
-        if area < 1e-16:
-            continue
-        nx, ny, nz = av[i, 0] / area, av[i, 1] / area, av[i, 2] / area
-        vn = (v[i, 0] - wind[0]) * nx + (v[i, 1] - wind[1]) * ny + (v[i, 2] - wind[2]) * nz
-        mag = coeff * area * vn * abs(vn)
-        f[i, 0] -= mag * nx
-        f[i, 1] -= mag * ny
-        f[i, 2] -= mag * nz
-
-
-@_jit
-def integrate(x: F64, v: F64, f: F64, inv_mass: F64, gravity: F64, damp: float, dt: float,
-              xp: F64) -> None:  # pragma: no cover
-    """Semi-implicit Euler: ``v += dt (f/m + g)``, ``v *= damp``, ``x += dt v``; saves ``x`` in ``xp``."""
-    for i in range(x.shape[0]):
-        for d in range(3):
-            xp[i, d] = x[i, d]
-        if inv_mass[i] > 0.0:
-            for d in range(3):
-                v[i, d] = (v[i, d] + dt * (f[i, d] * inv_mass[i] + gravity[d])) * damp
-                x[i, d] += dt * v[i, d]
-
-
 @_jit
 def long_range_attach(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:  # pragma: no cover
-    """Pull every free particle ``i`` back within ``reach[i]`` of particle ``anchor[i]`` (its pin)."""
+    """Pull every free particle ``i`` back within ``reach[i]`` of particle ``anchor[i]`` (its pin;
+    reference: :func:`~cloth_client.solver.reference.long_range_attach_reference`)."""
     for i in range(x.shape[0]):
         if inv_mass[i] <= 0.0:
             continue
@@ -253,6 +133,7 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
 
     Odd iterations sweep backwards (symmetric Gauss-Seidel). ``contact (N, 6)`` holds the unit
     normals of up to two surfaces each particle rests on (zero if none): moves into them are dropped.
+    Reference: :func:`~cloth_client.solver.reference.strain_limit_reference` (particle-disjoint batches).
     """
     n_springs = springs.shape[0]
     for it in range(iterations):
@@ -277,7 +158,7 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
                 continue
             c = (length - target) / (length * wsum)
             # the two ends written out: folded into a loop over (i, j), the compiled sums change
-            # bits (fast-math contraction; measured in session 9), which would void the sweep
+            # bits (fast-math contraction), which would void the sweep
             w = wi * c
             if _touching(_normals(contact, i)):
                 mx, my, mz = _slide(contact, i, w, dx, dy, dz)
@@ -315,7 +196,8 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
     without an active spring is skipped, an inactive spring's row of the system is the identity
     (``cp = dp = 0``, as ``0 / 1`` gives), the off-diagonal entry shared by rows ``k`` and ``k + 1``
     is computed once, a particle that touches nothing skips the projections (the identity then) and
-    one next to no active spring the move (zero): the same numbers as the plain form.
+    one next to no active spring the move (zero): the same numbers as the plain form (reference:
+    :func:`~cloth_client.solver.reference.line_limit_reference`).
     """
     m = lines.shape[1]
     nx = np.empty((m, 3))
@@ -415,7 +297,7 @@ def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float,
     tilted by a bow). Ties go to the first such spring (the numpy reference computes the same
     ratios, but rounding may break a near-tie differently). Rings must not share particles; the
     rotated rings ``(R, m)`` are gathered into work arrays (two small allocations per call; indices
-    wrap by a compare, not a modulo).
+    wrap by a compare, not a modulo). Reference: :func:`~cloth_client.solver.reference.ring_limit_reference`.
     """
     n_rings, m = rings.shape
     if n_rings == 0:
@@ -443,179 +325,17 @@ def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float,
     line_limit(x, inv_mass, rows, rows_rest, max_stretch, max_compression, contact)
 
 
-@_inline
-def _lerp_keys(keys: F64, s: float, out: F64) -> None:  # pragma: no cover
-    k = keys.shape[0] - 1
-    u = min(max(s, 0.0), 1.0) * k
-    i0 = min(int(u), k - 1)
-    w = u - i0
-    out[:] = (1.0 - w) * keys[i0] + w * keys[i0 + 1]
-
-
 @_jit
-def _worst_stretch2(x: F64, springs: I64, hi: F64, inv_mass: F64) -> float:  # pragma: no cover
+def worst_stretch2(x: F64, springs: I64, hi: F64, inv_mass: F64) -> float:  # pragma: no cover
     """Largest ``(l / hi)**2`` over the ``springs`` with a free end (no round can shorten a spring
-    between two pins: a collar spread round the skull would run every extra round in vain)."""
+    between two pins: a collar spread round the skull would run every extra round in vain; reference:
+    :func:`~cloth_client.solver.reference.worst_stretch2_reference`)."""
     worst = 0.0
     for s in range(springs.shape[0]):
-        i, j, d0, d1, d2 = _spring_vector(x, springs, s)
+        i, j, d0, d1, d2 = spring_vector(x, springs, s)
         if inv_mass[i] + inv_mass[j] <= 0.0:
             continue
         r = (d0 * d0 + d1 * d1 + d2 * d2) / (hi[s] * hi[s])
         if not r <= worst:  # a NaN propagates, as in the numpy reference
             worst = r
     return worst
-
-
-@_jit
-def simulate_substeps(
-    x: F64, v: F64, inv_mass: F64, springs: I64, rest: F64, k: F64, kd: F64, tris: I64,
-    drag_coeff: float, wind: F64, gravity: F64, mass_damping: float,
-    lim_springs: I64, lim_lo: F64, lim_hi: F64, lim_iterations: int,
-    lim_sweeps: int, final_sweeps: int, final_rounds: int, extra_rounds: int, extra_trigger2: float, straddles: bool,
-    opposed: float,
-    anchor: I64, reach: F64, lines_a: I64, rest_a: F64, lines_b: I64, rest_b: F64, lines_c: I64, rest_c: F64,
-    max_stretch: float, max_compression: float,
-    pin_idx: I64, pin_keys: F64, cap_a: F64, cap_b: F64, radii: F64,
-    margin: float, friction: float, floor: float, use_floor: bool, max_speed: float,
-    n_sub: int, dt_total: float,
-) -> None:  # pragma: no cover
-    """Advance ``x, v`` by ``dt_total`` in ``n_sub`` substeps (same sequence as
-    ``reference.substeps_np``).
-
-    ``pin_keys (K+1, P, 3)`` and ``cap_a, cap_b (K+1, C, 3)`` are sampled evenly over the step. After
-    the ``final_rounds``, up to ``extra_rounds`` more run while the largest ``(l / lim_hi)**2`` of the
-    structural springs exceeds ``extra_trigger2`` (the caller passes ``extra_rounds = 0`` when
-    ``final_rounds`` is 0), each first lifting straddled springs off the limb between their
-    particles when ``straddles`` (:func:`release_straddles`).
-    """
-    n = x.shape[0]
-    dt = dt_total / n_sub
-    damp = 1.0 / (1.0 + mass_damping * dt)
-    f = np.empty((n, 3))
-    xp = np.empty((n, 3))
-    av = np.empty((n, 3))
-    targets = np.empty(pin_keys.shape[1:])
-    a0 = np.empty(cap_a.shape[1:])
-    b0 = np.empty(cap_a.shape[1:])
-    a1 = np.empty(cap_a.shape[1:])
-    b1 = np.empty(cap_a.shape[1:])
-    contact = np.zeros((n, 6))
-    cand = np.empty(n, dtype=np.int64)
-    xb = np.empty((n, 3))
-    for step in range(n_sub):
-        s0 = step / n_sub
-        s1 = (step + 1) / n_sub
-        f[:] = 0.0
-        spring_forces(x, v, springs, rest, k, kd, f)
-        if drag_coeff > 0.0:
-            drag_forces(x, v, tris, drag_coeff, wind, av, f)
-        integrate(x, v, f, inv_mass, gravity, damp, dt, xp)
-        _lerp_keys(pin_keys, s1, targets)
-        for p in range(pin_idx.shape[0]):
-            i = pin_idx[p]
-            for d in range(3):
-                x[i, d] = targets[p, d]
-                v[i, d] = (targets[p, d] - xp[i, d]) / dt
-        _lerp_keys(cap_a, s0, a0)
-        _lerp_keys(cap_b, s0, b0)
-        _lerp_keys(cap_a, s1, a1)
-        _lerp_keys(cap_b, s1, b1)
-        contact[:] = 0.0
-        broad_phase(x, inv_mass, a1, b1, radii, margin + BROAD_SLACK, cand, xb)
-        for _ in range(lim_iterations):  # strain limiting and contacts, interleaved
-            long_range_attach(x, inv_mass, anchor, reach)
-            for _sweep in range(lim_sweeps):
-                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
-                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
-            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1, contact)
-            for i in range(n):
-                if inv_mass[i] > 0.0:
-                    for d in range(3):
-                        v[i, d] = (x[i, d] - xp[i, d]) / dt
-            collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact,
-                    cand, xb, BROAD_SLACK, xp)
-        # final rounds: contact-aware strain limiting (contacts slide along the surfaces of the last
-        # collision instead of into them), then collision (with final_rounds == 0: no collision after it)
-        # then up to extra_rounds more while a structural spring is stretched beyond the trigger
-        rounds = max(final_rounds, 1)
-        for _r in range(rounds + extra_rounds):
-            if _r >= rounds and _worst_stretch2(x, lim_springs, lim_hi, inv_mass) <= extra_trigger2:
-                break
-            for i in range(n):
-                for d in range(3):
-                    f[i, d] = x[i, d]
-            if straddles and _r >= rounds:  # a limb between two particles of a stretched spring: lift it off
-                release_straddles(x, inv_mass, lim_springs, lim_hi, extra_trigger2, a1, b1, radii, margin, opposed)
-            for _sweep in range(final_sweeps):
-                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
-                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
-            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
-            for i in range(n):
-                for d in range(3):
-                    v[i, d] += (x[i, d] - f[i, d]) / dt
-            if final_rounds > 0:  # friction was applied in the interleaved passes already
-                collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact,
-                        cand, xb, BROAD_SLACK, xp)
-        for i in range(n):
-            sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
-            if sp > max_speed and inv_mass[i] > 0.0:
-                for d in range(3):
-                    v[i, d] *= max_speed / sp
-
-
-@_inline
-def _rotvec_quat(p: F64, i: int) -> tuple[float, float, float, float]:  # pragma: no cover
-    """Unit quaternion ``(w, x, y, z)``, ``w >= 0``, of the rotation vector ``p[i:i + 3]``."""
-    rx, ry, rz = p[i], p[i + 1], p[i + 2]
-    theta = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if theta < 1e-8:
-        w, x, y, z = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-        n = math.sqrt(w * w + x * x + y * y + z * z)
-        return w / n, x / n, y / n, z / n
-    c, f = math.cos(0.5 * theta), math.sin(0.5 * theta) / theta
-    if c < 0.0:
-        c, f = -c, -f
-    return c, f * rx, f * ry, f * rz
-
-
-@_jit
-def interpolate_poses(p0: F64, p1: F64, s: F64, out: F64) -> None:  # pragma: no cover
-    """Articulated interpolation between poses ``p0`` and ``p1`` ``(P,)`` at fractions ``s (K,)``
-    into ``out (K, P)``: the root position linearly, every rotation slerped along the shorter arc
-    (reference: ``avatar.interpolate_poses(..., backend="numpy")``)."""
-    for k in range(s.shape[0]):
-        t = s[k]
-        for d in range(3):
-            out[k, d] = (1.0 - t) * p0[d] + t * p1[d]
-    for i in range(3, p0.shape[0], 3):
-        aw, ax, ay, az = _rotvec_quat(p0, i)
-        bw, bx, by, bz = _rotvec_quat(p1, i)
-        dot = aw * bw + ax * bx + ay * by + az * bz
-        if dot < 0.0:
-            bw, bx, by, bz, dot = -bw, -bx, -by, -bz, -dot
-        theta = math.acos(min(dot, 1.0))
-        st = math.sin(theta)
-        for k in range(s.shape[0]):
-            t = s[k]
-            if st < 1e-6:
-                w0, w1 = 1.0 - t, t
-            else:
-                w0, w1 = math.sin((1.0 - t) * theta) / st, math.sin(t * theta) / st
-            qw, qx, qy, qz = w0 * aw + w1 * bw, w0 * ax + w1 * bx, w0 * ay + w1 * by, w0 * az + w1 * bz
-            qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-            qw, qx, qy, qz = qw / qn, qx / qn, qy / qn, qz / qn
-            sn = math.sqrt(qx * qx + qy * qy + qz * qz)
-            scale = 2.0 if sn < 1e-12 else 2.0 * math.atan2(sn, qw) / sn
-            out[k, i], out[k, i + 1], out[k, i + 2] = scale * qx, scale * qy, scale * qz
-
-
-@_jit
-def spring_strain(x: F64, springs: I64, rest: F64, out: F64) -> None:  # pragma: no cover
-    """``out[s]`` = engineering strain ``(l - L) / L`` of spring ``s`` (reference:
-    ``cloth.structural_strain(..., backend="numpy")``)."""
-    for s in range(springs.shape[0]):
-        _i, _j, d0, d1, d2 = _spring_vector(x, springs, s)
-        out[s] = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) / rest[s] - 1.0

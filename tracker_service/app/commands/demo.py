@@ -78,6 +78,7 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     dp.add_argument("--no-video", action="store_true",
                     help="no mosaic video (the clients write no frames either): the JSON summary only")
     dp.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
+    dp.add_argument("--db", metavar="PATH", help="template database folder (default: out/db/mMA, built on first use)")
     return dp
 
 
@@ -91,13 +92,14 @@ class SystemDemoOptions(DemoOptions):
     video: bool = True
     seed: int = 0
     system_duration: float | None = None
+    db: str | None = None
 
 
 def options_from_args(args: argparse.Namespace) -> DemoOptions:
     if args.replay:
         return DemoOptions(duration=args.duration or 6.0, json=args.json, replay=True)
     return SystemDemoOptions(json=args.json, script=args.script, out=args.out, video=not args.no_video,
-                             seed=args.seed, system_duration=args.duration)
+                             seed=args.seed, system_duration=args.duration, db=args.db)
 
 
 def main(options: DemoOptions) -> int:
@@ -178,15 +180,19 @@ def _wait_ready(proc: subprocess.Popen[str], lines: queue.Queue[str], timeout: f
     return False
 
 
-def _stop_child(proc: subprocess.Popen[str], timeout: float = 3.0) -> int:
+def _stop_child(proc: subprocess.Popen[str], timeout: float = 3.0, signalled: bool = False) -> int:
+    """Stop a child with SIGINT (once) and wait; its exit status, 0 for a child that died of that
+    SIGINT (the stop it was asked for)."""
     if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
+        if not signalled:
+            proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-    return int(proc.returncode)
+    rc = int(proc.returncode)
+    return 0 if rc == -signal.SIGINT else rc
 
 
 def _run_demo(options: DemoOptions, stop: threading.Event) -> int:
@@ -538,7 +544,7 @@ def run_system_demo(o: SystemDemoOptions, stop: threading.Event) -> int:
         shutil.rmtree(out / sub, ignore_errors=True)
     (out / "logs").mkdir(parents=True, exist_ok=True)
     say("demo: loading the template database (the first run builds it: a few minutes, once)")
-    loaded = ensure_db(None)
+    loaded = ensure_db(o.db)
     endpoint = free_tcp_endpoint()
     cmds = _system_commands(o, loaded.path, endpoint, out)
     heard = _Listener(say)
@@ -575,7 +581,7 @@ def run_system_demo(o: SystemDemoOptions, stop: threading.Event) -> int:
                 if child.proc.poll() is None:
                     child.proc.send_signal(signal.SIGINT)
             for name, child in children.items():
-                rc = _stop_child(child.proc, 1.0 if stop.is_set() else _CLIENT_STOP_S)
+                rc = _stop_child(child.proc, 1.0 if stop.is_set() else _CLIENT_STOP_S, signalled=True)
                 if rc != 0 and failed is None:
                     failed = f"the {name} process exited with status {rc}"
             undeclare_quietly(*reversed(subs))

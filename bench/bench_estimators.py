@@ -1,11 +1,14 @@
 """Estimators compared on the very same rendered silhouettes: the tree filter (Okada & Stenger),
-Condensation (Isard & Blake) and the cardbox paper's hierarchical particle filter with deterministic
-(DRS) and stratified (SRS) resampling.
+Condensation (Isard & Blake), the cardbox paper's hierarchical particle filter with deterministic
+(DRS) and stratified (SRS) resampling, and ELMO (Demirdjian et al.: likelihood modes found by
+parameter-sensitive hashing over the tree's database leaves and local search, reweighted by a wide
+temporal prior; its hash index is built before the clip, not timed). ``elmo-lite`` (ELMO on a
+third of the evaluations) can be named in ``--estimators``.
 
 Usage::
 
     .venv/bin/python bench/bench_estimators.py [--frames 60] [--step 2] [--take NAME | --bvh FILE]
-        [--subject mMA] [--seed 0] [--estimators tree,condensation,drs,srs] [--out out/bench_estimators.json]
+        [--subject mMA] [--seed 0] [--estimators tree,condensation,drs,srs,elmo] [--out out/bench_estimators.json]
 
 The tree filter searches a small database (the four takes of the test suite's fixture, body mMA,
 built here in a few seconds); by default the clip is the first of them (the both-hands raise, so
@@ -44,6 +47,7 @@ from tracker_service.build.database import DbBuildConfig, build_filter_db, headi
 from tracker_service.camera import default_camera
 from tracker_service.estimators.base import Observation
 from tracker_service.estimators.condensation import Condensation, CondensationParams
+from tracker_service.estimators.elmo import Elmo, ElmoParams
 from tracker_service.estimators.hierarchical_pf import HierarchicalPF, HPFParams
 from tracker_service.estimators.particles import world_pose
 from tracker_service.estimators.tree_filter.filter import FilterParams, TreeFilter
@@ -100,7 +104,7 @@ def main() -> None:
     ap.add_argument("--bvh", type=Path, default=None, help="a BVH file")
     ap.add_argument("--subject", default="mMA", help="body model rendered (the database's is mMA)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--estimators", default="tree,condensation,drs,srs")
+    ap.add_argument("--estimators", default="tree,condensation,drs,srs,elmo")
     ap.add_argument("--out", type=Path, default=Path("out/bench_estimators.json"))
     args = ap.parse_args()
 
@@ -122,6 +126,10 @@ def main() -> None:
         "condensation": lambda: Condensation(db_body, cam, CondensationParams(), rng),
         "drs": lambda: HierarchicalPF(db_body, cam, HPFParams("drs"), rng),
         "srs": lambda: HierarchicalPF(db_body, cam, HPFParams("srs"), rng),
+        "elmo": lambda: Elmo(db, db_body, cam, ElmoParams(), rng),
+        # ELMO on a smaller budget (not in the default list): 20 hypotheses, 2 refined, 2 rounds, 1 mode
+        "elmo-lite": lambda: Elmo(db, db_body, cam, ElmoParams(n_hypotheses=20, n_refine=2, iterations=2,
+                                                               max_modes=1), rng),
     }
     results: dict[str, dict[str, Any]] = {}
     with threadpool_limits(1):

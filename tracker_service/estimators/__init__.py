@@ -1,8 +1,10 @@
 """Pose estimators behind one interface (:mod:`tracker_service.estimators.base`).
 
 ``tree`` (Okada & Stenger's tree-based filter over the template hierarchy, the default),
-``condensation`` (Isard & Blake's particle filter, the baseline) and ``drs`` / ``srs`` (the
-hierarchical particle filter of the cardbox paper with deterministic or stratified resampling).
+``condensation`` (Isard & Blake's particle filter, the baseline), ``drs`` / ``srs`` (the
+hierarchical particle filter of the cardbox paper with deterministic or stratified resampling) and
+``elmo`` (Demirdjian et al.'s exploration of likelihood modes: parameter-sensitive hashing over the
+database's leaves, local refinement, reweighting by a wide temporal prior).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from tracker_service.estimators.tree_filter.model import FilterDB, FilterParams
 __all__ = ["ESTIMATORS", "make_estimator"]
 
 #: The estimators ``--estimator`` accepts.
-ESTIMATORS = ("tree", "condensation", "drs", "srs")
+ESTIMATORS = ("tree", "condensation", "drs", "srs", "elmo")
 
 
 def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: FilterParams,
@@ -27,7 +29,7 @@ def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: 
 
     Parameters
     ----------
-    name : {'tree', 'condensation', 'drs', 'srs'}
+    name : {'tree', 'condensation', 'drs', 'srs', 'elmo'}
     db : FilterDB
         The template database (the tree filter searches it).
     body : Body
@@ -37,7 +39,7 @@ def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: 
     params : FilterParams
         The tree filter's tuning.
     seed : int
-        The particle filters' random stream.
+        The particle filters' random stream (ELMO's: learning its hash functions).
 
     Returns
     -------
@@ -56,4 +58,8 @@ def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: 
         from tracker_service.estimators.hierarchical_pf import HierarchicalPF, HPFParams
 
         return HierarchicalPF(body, camera, HPFParams(resampling="drs" if name == "drs" else "srs"), rng=rng)
+    if name == "elmo":
+        from tracker_service.estimators.elmo import Elmo
+
+        return Elmo(db, body, camera, rng=rng)
     raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(ESTIMATORS)}")

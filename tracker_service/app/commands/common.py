@@ -127,10 +127,10 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
                         "shoulder=M (joint spacing), arm=RATIO, leg=RATIO (1.0 = the family's proportions)"
                         + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
                            if subject else ""))
-    p.add_argument("--estimator", choices=["tree", "condensation", "drs", "srs"], default="tree",
+    p.add_argument("--estimator", choices=["tree", "condensation", "drs", "srs", "elmo"], default="tree",
                    help="pose estimator: tree (Okada & Stenger's tree filter), condensation (1000 particles), "
-                        "drs / srs (hierarchical particle filter, deterministic / stratified resampling) "
-                        "(default: tree)")
+                        "drs / srs (hierarchical particle filter, deterministic / stratified resampling), "
+                        "elmo (likelihood modes: hashing, local search, wide temporal prior) (default: tree)")
     p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
                    help="silhouette distance (default: xor, the most accurate in our measurements; the "
                         "paper's choice is nwxor)")

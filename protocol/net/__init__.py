@@ -1,1 +1,2 @@
-"""protocol.net."""
+"""Networking helpers: Zenoh configuration and sessions from ``--mode/--connect/--listen/--config``
+(:mod:`.session`) and shared argument types (:mod:`.cli_args`)."""

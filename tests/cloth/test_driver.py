@@ -374,7 +374,7 @@ def test_waistband_stays_square_to_the_abdomen_when_the_back_bends() -> None:
 @pytest.mark.parametrize("kind", ["cape", "skirt"])
 def test_driver_hands_the_seam_its_rest_lengths(kind: str) -> None:
     """The slide's length pass gets one rest length per seam segment (the skirt's ring closed),
-    the pins' spacing in the garment; ``keep_seam_length=False`` keeps session 19's slide."""
+    the pins' spacing in the garment; ``keep_seam_length=False`` keeps the slide without the length pass."""
     g = make_garment(kind, BODY, 500)
     d = ClothDriver(BODY, g, config=FAST)
     seam = g.rest[g.pin_index]
@@ -451,8 +451,8 @@ def test_skirt_strain_stays_low_while_a_forearm_swings_through_the_hips(rate: fl
     """The synthetic motion swings the left forearm 12-15 cm deep through the pelvis (t = 0.5-1 s,
     ``test_limb_overlap_of_a_forearm_swung_through_the_hips``). The avatar's forearm is turned out
     of the hips and kept on the side it came from from key to key, so it is never ghosted and the
-    skirt stays within the 10 % target on every frame at every input rate (5-8 % measured). Before
-    the correction was carried (session 10) the forearm was ghosted past a 14 cm push and the
+    skirt stays within the 10 % target on every frame at every input rate (5-8 % measured). Without
+    the correction carried, the forearm was ghosted past a 14 cm push and the
     frames where it left the hips reached 28-248 % at 15-60 Hz input."""
     strains, ghosted = _swing_strains(rate)
     assert not ghosted

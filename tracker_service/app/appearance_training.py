@@ -13,8 +13,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from tracker_service.app.gesture_files import gesture_scripts
 from tracker_service.app.options import Passes, TrainAppearanceOptions
-from tracker_service.app.resources import gesture_scripts
 
 __all__ = ["train_appearance"]
 

@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from tracker_service.app.gesture_files import gesture_scripts
 from tracker_service.app.options import BuildDbOptions, TrackerOptions, TrainAppearanceOptions
 from tracker_service.paths import REPO_ROOT
 
@@ -28,7 +27,6 @@ __all__ = [
     "default_script_dirs",
     "ensure_appearance",
     "ensure_db",
-    "gesture_scripts",
     "requested_camera",
     "resolve_db",
 ]
@@ -48,25 +46,6 @@ def default_script_dirs() -> tuple[str, ...]:
     """:data:`DEFAULT_SCRIPT_DIRS` as strings (the folders build-db and train-appearance use
     without ``--scripts`` / ``--no-scripts``)."""
     return tuple(str(d) for d in DEFAULT_SCRIPT_DIRS)
-
-
-def gesture_scripts(dirs: Sequence[str]) -> list[Path]:
-    """The gesture scripts (``*.toml`` with ``[[key]]`` tables) in the given folders; other TOML
-    files there (e.g. a game's label file) are skipped with a note."""
-    import tomllib
-
-    out = []
-    for p in sorted(q for d in dirs for q in Path(d).glob("*.toml")):
-        try:
-            doc = tomllib.loads(p.read_text())
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-            out.append(p)  # let the script reader report it with file and line
-            continue
-        if "key" in doc:
-            out.append(p)
-        else:
-            print(f"{p} has no [[key]] tables: not a gesture script, skipped", file=sys.stderr)
-    return out
 
 
 def build_database(body_name: str, out: Path, options: BuildDbOptions, camera: Camera | None = None

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
-from typing import Any, Literal
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,18 +27,16 @@ from protocol.kinematics import fk
 from protocol.skeleton import N_PARTS, Body
 from tracker_service.camera import Camera
 from tracker_service.cues.appearance import camera_joints
-from tracker_service.cues.reading_filter import ReadingState
-from tracker_service.cues.shoes import ShoeModel, band_pixels, learn_shoes
+from tracker_service.cues.shoes import band_pixels, learn_shoes
 from tracker_service.estimators import make_estimator
 from tracker_service.estimators.base import Estimate
-from tracker_service.estimators.tree_filter.filter import FilterDB, FilterState, TreeFilter, initial_state
+from tracker_service.estimators.tree_filter.filter import FilterDB, FilterState, TreeFilter
 from tracker_service.pipeline.body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
 from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.observe import FrameEvidence, observe
 from tracker_service.pipeline.publish import Transition, publish
-from tracker_service.pipeline.smoothing import SmoothState
+from tracker_service.pipeline.state import FrameResult, Phase, TrackerState, new_state
 from tracker_service.silhouette.background import (
-    BackgroundModel,
     learn_background,
     learn_background_robust,
     subtract,
@@ -46,87 +44,9 @@ from tracker_service.silhouette.background import (
 )
 from tracker_service.silhouette.features import preprocess
 
-__all__ = ["FrameResult", "TrackerConfig", "TrackerState", "new_state", "process_frame"]
+__all__ = ["FrameResult", "TrackerConfig", "TrackerState", "force_loss", "implausible", "new_state", "process_frame"]
 
 log = logging.getLogger(__name__)
-
-Phase = Literal["learning", "waiting", "initialising", "tracking"]
-
-
-@dataclass(frozen=True)
-class TrackerState:
-    """Everything carried from one frame to the next."""
-
-    phase: Phase
-    background: BackgroundModel | None
-    learning: tuple[NDArray[np.uint8], ...]
-    filter: Any  # the estimator's state (FilterState for the tree filter)
-    body: Body
-    body_scale: float
-    body_scores: dict[str, list[float]]
-    statures: tuple[float, ...] = ()
-    frames_in_phase: int = 0
-    reinits: int = 0
-    clock: float = 0.0
-    smooth: SmoothState | None = None
-    shoe_samples: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
-    shoes: ShoeModel | None = None
-    bone_readings: tuple[NDArray[np.float64], ...] = ()
-    proportions_set: bool = False
-    base_body: Body | None = None  # the model before the proportions were read (proportions.py)
-    reading: ReadingState | None = None  # the network's readings filtered over time (reading_filter.py)
-    withheld: int = 0  # consecutive frames whose pose was withheld (TrackerConfig.min_confidence)
-    relearning: bool = False  # learning the background again, robustly (a person was in it)
-    relearns: int = 0
-    supported: int = 0  # poses published since the background was learned
-    estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """Output of :func:`process_frame` for one frame.
-
-    Attributes
-    ----------
-    phase : str
-    silhouette : (H, W) bool or None
-    pose : (P,) float64 or None
-        World pose (root placed in the scene), None until tracking.
-    joints : (J, 3) float64 or None
-    visibility : (N_PARTS,) float32
-    confidence : float
-    distance : float
-    evaluations : tuple of int
-    stage_ms : dict[str, float]
-        ``background``, ``preprocess``, ``estimate`` (of which ``filter``: the cues and the filter
-        step; ``appearance``: the appearance cue's network) and ``total`` milliseconds.
-    reinitialised : bool
-    body_changed : bool
-        The body model was (re)chosen in this frame.
-    rejected : str or None
-        Why this frame's pose was withheld (``pose`` and ``joints`` are None): the estimate put the
-        person where no person can be seen from this camera (:func:`implausible`).
-    """
-
-    phase: Phase
-    silhouette: NDArray[np.bool_] | None
-    pose: NDArray[np.float64] | None
-    joints: NDArray[np.float64] | None
-    visibility: NDArray[np.float32]
-    confidence: float
-    distance: float
-    evaluations: tuple[int, ...]
-    stage_ms: dict[str, float]
-    reinitialised: bool = False
-    body_changed: bool = False
-    rejected: str | None = None
-
-
-def new_state(body: Body, background: BackgroundModel | None = None) -> TrackerState:
-    """Initial state; ``learning`` unless a background model is given."""
-    return TrackerState(phase="waiting" if background is not None else "learning", background=background,
-                        learning=(), filter=initial_state(), body=body, body_scale=1.0, body_scores={})
-
 
 #: Where a tracked person can be: the pelvis's depth in front of the camera and its height over the floor
 #: (metres). Outside, the silhouette is not a person standing in the room (a background learned with the

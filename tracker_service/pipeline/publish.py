@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,10 +30,8 @@ from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.observe import FrameEvidence
 from tracker_service.pipeline.refinement import refine_pose
 from tracker_service.pipeline.smoothing import smooth_pose
+from tracker_service.pipeline.state import TrackerState
 from tracker_service.silhouette.placement import feet_scale, placement_to_root, scaled_placement
-
-if TYPE_CHECKING:
-    from tracker_service.pipeline.process import TrackerState
 
 __all__ = ["Transition", "publish"]
 

@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 
 from tracker_service.app.commands.train_appearance import parse_passes
+from tracker_service.app.gesture_files import gesture_scripts
 from tracker_service.app.options import TrackerOptions
-from tracker_service.app.resources import gesture_scripts
 from tracker_service.app.tracker_config import subject_keys, tracker_config
 
 REPO = Path(__file__).resolve().parents[3]

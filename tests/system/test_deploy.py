@@ -1,0 +1,434 @@
+"""Multi-host deployment (docs/DEPLOY.md, deploy/): ``mocap-router``, clients through it, and the sample
+TLS / mutual-TLS / user-password / access-control configs, all on 127.0.0.1.
+
+Certificates are made per module with ``deploy/make-certs.sh`` (the openssl command line): a CA, a
+router certificate for localhost/127.0.0.1, client certificates "tracker", "game", "cloth", one
+"intruder" signed by the same CA but unknown to the access-control rules, and a second, rogue CA
+with its own "tracker" and "game". The sample files' placeholders (@SECRETS@, @NAME@, @ROUTER@,
+@PASSWORD@) are filled in as docs/DEPLOY.md tells a user to.
+
+Every router is a subprocess stopped with SIGINT (and killed in ``finally``); clients are in-process
+client-mode sessions closed by ``with``; subscribers use channel handlers except the latency test's,
+which is undeclared in ``finally``. Negative checks wait a bounded time, with a positive control in
+the same window where one exists.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+
+from protocol.net.router import build_parser, router_config
+from protocol.net.session import build_config, free_tcp_endpoint, open_session, undeclare_quietly
+from protocol.skeleton import N_JOINTS, N_PARTS, POSE_SIZE
+from protocol.wire.codec import decode, encode
+from protocol.wire.keys import DEFAULT_ENDPOINT, game_event_key, pose_key
+from protocol.wire.messages import PoseFrame
+
+pytestmark = pytest.mark.zenoh
+
+REPO = Path(__file__).resolve().parents[2]
+DEPLOY = REPO / "deploy"
+_BIN = Path(sys.executable).parent
+ROUTER = [str(_BIN / "mocap-router")] if (_BIN / "mocap-router").is_file() else [
+    sys.executable, "-m", "protocol.net.router"]
+TRACKER = [str(_BIN / "mocap-tracker")] if (_BIN / "mocap-tracker").is_file() else [
+    sys.executable, "-m", "tracker_service"]
+ECHO = [sys.executable, "-m", "protocol", "echo"]
+PASSWORDS = {"tracker": "tracker-secret-1", "game": "game-secret-2"}
+
+
+# --- processes -------------------------------------------------------------------------------------
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
+    return env
+
+
+class Proc:
+    """A child process whose stderr lines are collected by a reader thread."""
+
+    def __init__(self, argv: list[str]):
+        self.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                      env=_env(), cwd=REPO)
+        self.err: list[str] = []
+        self.out: list[str] = []
+        self._q: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=self._pump, args=(self.popen.stderr, self.err, self._q), daemon=True).start()
+        threading.Thread(target=self._pump, args=(self.popen.stdout, self.out, None), daemon=True).start()
+
+    @staticmethod
+    def _pump(stream: Any, sink: list[str], q: queue.Queue[str] | None) -> None:
+        for line in stream:
+            sink.append(line.rstrip("\n"))
+            if q is not None:
+                q.put(line)
+
+    def wait_for(self, needle: str, timeout: float = 10.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if needle in self._q.get(timeout=0.05):
+                    return True
+            except queue.Empty:
+                if self.popen.poll() is not None:
+                    return False
+        return False
+
+    def stop(self, sig: signal.Signals = signal.SIGINT, timeout: float = 2.0) -> tuple[int | None, float]:
+        """Send ``sig`` and wait up to ``timeout`` s: (exit status or None, seconds taken)."""
+        t0 = time.monotonic()
+        if self.popen.poll() is None:
+            self.popen.send_signal(sig)
+        try:
+            rc = self.popen.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            rc = None
+        return rc, time.monotonic() - t0
+
+    def kill(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.kill()
+        self.popen.wait(timeout=5)
+
+
+@contextmanager
+def running_router(*args: str, endpoint: str) -> Iterator[Proc]:
+    """``mocap-router ARGS --listen ENDPOINT``, ready (it logged its endpoint); SIGINT on exit, which
+    must stop it with status 0 within 2 s."""
+    proc = Proc([*ROUTER, *args, "--listen", endpoint])
+    try:
+        assert proc.wait_for(f"listening on {endpoint}"), "router did not start:\n" + "\n".join(proc.err)
+        yield proc
+        rc, took = proc.stop(signal.SIGINT)
+        assert rc == 0 and took < 2.0, f"router stop: rc={rc} after {took:.2f} s\n" + "\n".join(proc.err)
+    finally:
+        proc.kill()
+
+
+# --- certificates and sample configs ----------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """``{"good": folder, "rogue": folder}`` made by deploy/make-certs.sh, plus credentials.txt."""
+    if shutil.which("openssl") is None:
+        pytest.skip("the openssl command line is not installed")
+    root = tmp_path_factory.mktemp("pki")
+    good, rogue = root / "secrets", root / "rogue"
+    script = str(DEPLOY / "make-certs.sh")
+    for argv in ([script, "-d", "2", str(good)], [script, "-d", "2", "-c", "intruder", str(good)],
+                 [script, "-d", "2", "-c", "tracker game", str(rogue)]):
+        subprocess.run(argv, check=True, capture_output=True, timeout=30)
+    (good / "credentials.txt").write_text("".join(f"{u}:{p}\n" for u, p in PASSWORDS.items()))
+    return {"good": good, "rogue": rogue}
+
+
+def fill(sample: str, out: Path, **values: str) -> Path:
+    """``deploy/SAMPLE`` with ``@KEY@`` replaced by ``values[key]`` (lower-case keys), written to ``out``."""
+    text = (DEPLOY / sample).read_text()
+    for key, value in values.items():
+        text = text.replace(f"@{key.upper()}@", value)
+    assert "@" not in "".join(line.split("//")[0] for line in text.splitlines()), f"unfilled placeholder in {out}"
+    out.write_text(text)
+    return out
+
+
+def try_client(config_file: Path | None, endpoint: str, role: str = "subscriber") -> zenoh.Session | None:
+    """A client-mode session on ``endpoint`` with ``config_file``, or None if it cannot connect."""
+    conf = build_config("publisher" if role == "publisher" else "subscriber", mode="client", connect=[endpoint],
+                        config_file=config_file)
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError:
+        return None
+
+
+@contextmanager
+def clients(*specs: tuple[Path | None, str]) -> Iterator[list[zenoh.Session | None]]:
+    """Open one client per ``(config_file, endpoint)``; close the opened ones on exit."""
+    opened: list[zenoh.Session | None] = []
+    try:
+        for config_file, endpoint in specs:
+            opened.append(try_client(config_file, endpoint))
+        yield opened
+    finally:
+        for session in opened:
+            if session is not None:
+                session.close()
+
+
+def exchange(pairs: list[tuple[zenoh.Session | None, str, zenoh.Session | None, str]],
+             n: int = 5, expect: int | None = None, timeout: float = 3.0) -> list[int]:
+    """For each ``(publisher, key, subscriber, key_expr)``: subscribe, then put ``n`` messages, all pairs
+    in the same time window; return how many each subscriber received. Waits until every pair whose
+    count must reach ``expect`` has it (or ``timeout``), and at least 1 s in all."""
+    subs = [s.declare_subscriber(ke, zenoh.handlers.FifoChannel(1000)) if s is not None else None
+            for _, _, s, ke in pairs]
+    try:
+        time.sleep(0.6)  # declarations travel subscriber -> router -> publisher
+        for i in range(n):
+            for pub, key, _, _ in pairs:
+                if pub is not None:
+                    pub.put(key, b"msg %d" % i)
+            time.sleep(0.005)
+        counts = [0] * len(pairs)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            for i, sub in enumerate(subs):
+                while sub is not None and sub.try_recv() is not None:
+                    counts[i] += 1
+            if time.monotonic() - t0 >= 1.0 and (expect is None or expect in counts):
+                break
+            time.sleep(0.02)
+        return counts
+    finally:
+        undeclare_quietly(*subs)
+
+
+# --- mocap-router itself -----------------------------------------------------------------------------
+
+
+def test_help_says_how_to_listen_on_the_lan_and_version() -> None:
+    text = build_parser().format_help()
+    assert DEFAULT_ENDPOINT in text and "tcp/0.0.0.0:7447" in text and "--mode client --connect" in text
+    out = subprocess.run([*ROUTER, "--version"], capture_output=True, text=True, timeout=20, env=_env(), cwd=REPO)
+    assert out.returncode == 0 and out.stdout.startswith("mocap-router ") and "zenoh" in out.stdout
+
+
+def test_router_config_defaults_and_precedence(tmp_path: Path) -> None:
+    conf = router_config()
+    get = lambda c, k: json.loads(c.get_json(k))  # noqa: E731
+    assert get(conf, "mode") == "router"
+    assert get(conf, "listen/endpoints") == [DEFAULT_ENDPOINT]
+    assert get(conf, "connect/endpoints") == []
+    assert get(conf, "scouting/multicast/enabled") is False
+    f = tmp_path / "r.json5"
+    f.write_text('{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:7999"] } }')
+    assert get(router_config(config_file=str(f)), "listen/endpoints") == ["tcp/127.0.0.1:7999"]
+    assert get(router_config(config_file=str(f)), "mode") == "router"
+    assert get(router_config(["tcp/127.0.0.1:7998"], str(f)), "listen/endpoints") == ["tcp/127.0.0.1:7998"]
+
+
+def test_client_mode_publisher_connects_and_does_not_take_the_router_port() -> None:
+    conf = build_config("publisher", mode="client")
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
+    assert json.loads(conf.get_json("connect/endpoints")) == [DEFAULT_ENDPOINT]
+    assert json.loads(build_config("publisher").get_json("listen/endpoints")) == [DEFAULT_ENDPOINT]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_router_routes_between_clients_and_stops_cleanly(sig: signal.Signals) -> None:
+    ep = free_tcp_endpoint()
+    proc = Proc([*ROUTER, "--listen", ep])
+    try:
+        assert proc.wait_for(f"listening on {ep}"), "\n".join(proc.err)
+        with clients((None, ep), (None, ep)) as (pub, sub):
+            assert pub is not None and sub is not None
+            assert exchange([(pub, "mocap/tracker/t/pose", sub, "mocap/**")], expect=5) == [5]
+        rc, took = proc.stop(sig)
+        assert rc == 0, "\n".join(proc.err)
+        assert took < 2.0
+        assert any("shutting down" in line for line in proc.err)
+    finally:
+        proc.kill()
+
+
+def test_router_errors_exit_1(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: 42 }")
+    ep = free_tcp_endpoint()
+    with running_router(endpoint=ep):
+        for argv in (["--config", str(tmp_path / "missing.json5")], ["--config", str(bad)], ["--listen", ep]):
+            out = subprocess.run([*ROUTER, *argv], capture_output=True, text=True, timeout=20, env=_env(), cwd=REPO)
+            assert out.returncode == 1, (argv, out.stderr)
+            assert "mocap-router:" in out.stderr
+
+
+# --- TLS, mutual TLS, user/password, access control --------------------------------------------------
+
+
+def _tls_endpoint() -> str:
+    return "tls/" + free_tcp_endpoint().split("/", 1)[1]
+
+
+@pytest.mark.slow
+def test_tls_router_admits_clients_that_trust_its_ca_only(pki: dict[str, Path], tmp_path: Path) -> None:
+    good, rogue = str(pki["good"]), str(pki["rogue"])
+    router = fill("router-tls.json5", tmp_path / "router.json5", secrets=good)
+    client = fill("client-tls.json5", tmp_path / "client.json5", secrets=good, router="127.0.0.1")
+    wrong_ca = fill("client-tls.json5", tmp_path / "wrong.json5", secrets=rogue, router="127.0.0.1")
+    ep = _tls_endpoint()
+    with running_router("--config", str(router), endpoint=ep) as proc:
+        assert any("TLS: server certificate only" in line for line in proc.err)
+        with clients((client, ep), (client, ep), (wrong_ca, ep), (None, "tcp/" + ep.split("/", 1)[1])) as (
+                pub, sub, bad, plain):
+            assert pub is not None and sub is not None
+            assert bad is None, "a client that does not trust the router's CA connected"
+            assert plain is None, "a plain tcp client connected to the TLS port"
+            assert exchange([(pub, "mocap/tracker/t/pose", sub, "mocap/**")], expect=5) == [5]
+
+
+@pytest.mark.slow
+def test_mutual_tls_router_refuses_clients_without_a_certificate_from_its_ca(
+        pki: dict[str, Path], tmp_path: Path) -> None:
+    good, rogue = str(pki["good"]), str(pki["rogue"])
+    router = fill("router-mtls.json5", tmp_path / "router.json5", secrets=good)
+    tracker = fill("client-mtls.json5", tmp_path / "tracker.json5", secrets=good, name="tracker", router="127.0.0.1")
+    game = fill("client-mtls.json5", tmp_path / "game.json5", secrets=good, name="game", router="127.0.0.1")
+    no_cert = fill("client-tls.json5", tmp_path / "nocert.json5", secrets=good, router="127.0.0.1")
+    # trusts the right CA but presents a certificate of the rogue CA
+    rogue_cert = fill("client-mtls.json5", tmp_path / "rogue.json5", secrets=good, name="game", router="127.0.0.1")
+    rogue_cert.write_text(rogue_cert.read_text().replace(f"{good}/game.", f"{rogue}/game."))
+    ep = _tls_endpoint()
+    with running_router("--config", str(router), endpoint=ep) as proc:
+        assert any("mutual TLS" in line for line in proc.err)
+        with clients((tracker, ep), (game, ep), (no_cert, ep), (rogue_cert, ep)) as (t, g, nc, rc):
+            assert t is not None and g is not None
+            assert nc is None and rc is None, "a client without a certificate signed by the CA connected"
+            assert exchange([(t, "mocap/tracker/t/pose", g, "mocap/**")], expect=5) == [5]
+
+
+@pytest.mark.slow
+def test_user_password_router_refuses_unknown_credentials(pki: dict[str, Path], tmp_path: Path) -> None:
+    router = fill("router-usrpwd.json5", tmp_path / "router.json5", secrets=str(pki["good"]))
+    tracker = fill("client-usrpwd.json5", tmp_path / "tracker.json5", name="tracker",
+                   password=PASSWORDS["tracker"], router="127.0.0.1")
+    game = fill("client-usrpwd.json5", tmp_path / "game.json5", name="game", password=PASSWORDS["game"],
+                router="127.0.0.1")
+    wrong = fill("client-usrpwd.json5", tmp_path / "wrong.json5", name="game", password="guess",
+                 router="127.0.0.1")
+    ep = free_tcp_endpoint()
+    with running_router("--config", str(router), endpoint=ep) as proc:
+        assert any("user/password authentication" in line for line in proc.err)
+        with clients((tracker, ep), (game, ep), (wrong, ep), (None, ep)) as (t, g, w, anonymous):
+            assert t is not None and g is not None
+            assert w is None, "a client with a wrong password connected"
+            assert anonymous is None, "a client without credentials connected"
+            assert exchange([(t, "mocap/tracker/t/pose", g, "mocap/**")], expect=5) == [5]
+
+
+@pytest.mark.slow
+def test_access_control_only_the_owner_publishes_and_strangers_get_nothing(
+        pki: dict[str, Path], tmp_path: Path) -> None:
+    good = str(pki["good"])
+    router = fill("router-acl.json5", tmp_path / "router.json5", secrets=good)
+    files = {name: fill("client-mtls.json5", tmp_path / f"{name}.json5", secrets=good, name=name,
+                        router="127.0.0.1") for name in ("tracker", "game", "cloth", "intruder")}
+    ep = _tls_endpoint()
+    tk, gk = pose_key("cam0"), game_event_key("g1")
+    with running_router("--config", str(router), endpoint=ep) as proc:
+        assert any("access control: 8 rules, 3 subjects, 3 policies, default deny" in line for line in proc.err)
+        with clients(*((files[n], ep) for n in ("tracker", "game", "cloth", "intruder"))) as (t, g, c, x):
+            assert None not in (t, g, c, x)  # the intruder's certificate is valid: ACL, not TLS, stops it
+            # owners publish; everyone known may read; the intruder receives nothing (nothing in)
+            assert exchange([(t, tk, g, "mocap/tracker/**"), (g, gk, t, "mocap/game/**"),
+                             (None, "", c, "mocap/**"), (None, "", x, "mocap/**")], expect=10) == [5, 5, 10, 0]
+            # nobody but the owner publishes on its keys, the intruder nowhere (nothing out)
+            # (the intruder's puts would land in the first, second and last subscriber)
+            assert exchange([(g, pose_key("fake"), t, "mocap/tracker/**"),
+                             (t, game_event_key("fake"), g, "mocap/game/**"),
+                             (x, pose_key("x"), None, ""), (x, game_event_key("x"), None, ""),
+                             (x, "mocap/cloth/x/mesh", None, ""),
+                             (c, "mocap/cloth/c/mesh", g, "mocap/cloth/**")], expect=5) == [0, 0, 0, 0, 0, 5]
+
+
+# --- end to end through the router: PoseFrames and the router hop's latency ------------------------
+
+
+def _pose_frame(seq: int) -> PoseFrame:
+    return PoseFrame(tracker_id="cam0", seq=seq, capture_ts=seq / 30.0, publish_ts=time.time(),
+                     pose=np.linspace(-1.0, 1.0, POSE_SIZE), joints=np.arange(N_JOINTS * 3).reshape(N_JOINTS, 3) * 0.01,
+                     visibility=np.linspace(0.0, 1.0, N_PARTS), confidence=0.75, estimator="tree", body_model="mMA")
+
+
+def _latencies(pub_conf: zenoh.Config, sub_conf: zenoh.Config, n: int, period: float) -> tuple[np.ndarray, int]:
+    """Put ``n`` encoded PoseFrames every ``period`` s; return (latencies in ms, frames received)."""
+    key = pose_key("cam0")
+    sent: dict[int, float] = {}
+    got: list[tuple[float, bytes]] = []
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        got.append((time.perf_counter(), sample.payload.to_bytes()))
+
+    with open_session(sub_conf) as sub_s, open_session(pub_conf) as pub_s, ExitStack() as undo:
+        sub = sub_s.declare_subscriber(key, on_sample)
+        undo.callback(undeclare_quietly, sub)
+        pub = pub_s.declare_publisher(key)
+        undo.callback(undeclare_quietly, pub)
+        deadline = time.monotonic() + 5.0
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert pub.matching_status.matching, "the subscriber never became visible to the publisher"
+        payloads = [encode(_pose_frame(i)) for i in range(n)]
+        next_t = time.perf_counter()
+        for i, payload in enumerate(payloads):
+            # sleep, never spin: the subscriber's callback needs the GIL the moment a sample arrives
+            time.sleep(max(0.0, next_t - time.perf_counter()))
+            sent[i] = time.perf_counter()
+            pub.put(payload)
+            next_t += period
+        deadline = time.monotonic() + 3.0
+        while len(got) < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        undeclare_quietly(sub)
+    lat = []
+    for t_recv, payload in list(got):
+        frame = decode(payload)
+        assert isinstance(frame, PoseFrame) and frame.tracker_id == "cam0"
+        lat.append((t_recv - sent[frame.seq]) * 1e3)
+    return np.asarray(lat), len(got)
+
+
+@pytest.mark.slow
+def test_pose_frames_through_the_router_and_the_hop_latency(capsys: pytest.CaptureFixture[str]) -> None:
+    n, period = 200, 0.005
+    ep = free_tcp_endpoint()
+    with running_router(endpoint=ep):
+        routed, n_routed = _latencies(build_config("publisher", mode="client", connect=[ep]),
+                                      build_config("subscriber", mode="client", connect=[ep]), n, period)
+    direct_ep = free_tcp_endpoint()
+    direct, n_direct = _latencies(build_config("publisher", listen=[direct_ep]),
+                                  build_config("subscriber", connect=[direct_ep]), n, period)
+    p = lambda a, q: float(np.percentile(a, q)) if len(a) else float("nan")  # noqa: E731
+    with capsys.disabled():
+        print(f"\n[router hop] {n_routed}/{n} PoseFrames ({len(encode(_pose_frame(0)))} B) client -> router -> client: "
+              f"p50 {p(routed, 50):.3f} ms, p99 {p(routed, 99):.3f} ms, max {p(routed, 100):.3f} ms; "
+              f"direct peer -> peer: {n_direct}/{n}, p50 {p(direct, 50):.3f} ms, p99 {p(direct, 99):.3f} ms")
+    assert n_routed >= 0.95 * n and n_direct >= 0.95 * n
+    assert p(routed, 50) < 50.0 and p(routed, 99) < 500.0  # loose: 2 busy cores
+
+
+@pytest.mark.slow
+def test_the_documented_lan_commands_work_on_loopback() -> None:
+    """docs/DEPLOY.md's router set-up with its ports changed: router, tracker replay in client mode,
+    echo in client mode."""
+    ep = free_tcp_endpoint()
+    with running_router(endpoint=ep):
+        echo = Proc([*ECHO, "--id", "cam0", "--count", "20", "--timeout", "20", "--mode", "client", "--connect", ep])
+        tracker = Proc([*TRACKER, "replay", "--synthetic-wave", "--rate", "60", "--frames", "20", "--id", "cam0",
+                        "--wait-for-subscriber", "15", "--mode", "client", "--connect", ep])
+        try:
+            assert tracker.popen.wait(timeout=25) == 0, "\n".join(tracker.err)
+            assert echo.popen.wait(timeout=25) == 0, "\n".join(echo.err)
+            assert any("20 pose" in line for line in echo.err), echo.err
+        finally:
+            tracker.kill()
+            echo.kill()

@@ -1,7 +1,7 @@
 """The shipped appearance network's provenance: a model card beside the weights.
 
-``python -m tracker_service.build.model_card NET.npz --version N --command "..."`` copies a trained
-network file into the package (``tracker_service/cues/models/appearance-vN.npz``) and writes its
+``python -m tracker_service.build.model_card NET.npz --version N --command "..."`` writes a trained
+network file into the package, its weights in float16 (``tracker_service/cues/models/appearance-vN.npz``) and writes its
 card (``appearance-vN.json``): the training command, a digest of the training data (the recordings'
 index and every gesture script), the validation figures the training reported, the file's sha256,
 and a *probe*: the network's outputs on a fixed pseudo-random input, so that a test can hold the
@@ -14,7 +14,6 @@ import argparse
 import hashlib
 import json
 import platform
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from tracker_service.cues.appearance import AppearanceNet, forward, load_appearance
+from tracker_service.cues.appearance import AppearanceNet, forward, load_appearance, save_appearance
 from tracker_service.paths import PACKAGE_DIR
 
 __all__ = ["MODELS_DIR", "check_card", "model_card", "probe_input"]
@@ -125,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     scripts = [p for d in DEFAULT_SCRIPT_DIRS for p in Path(d).glob("*.toml")]
     dest = MODELS_DIR / f"appearance-v{args.version}.npz"
     dest.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(args.net, dest)
+    save_appearance(dest, load_appearance(args.net), half=True)  # float16 weights: half the size
     card = model_card(dest, args.version, args.command, data_digest(root / "INDEX.tsv", scripts))
     dest.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
     print(f"{dest} ({dest.stat().st_size / 1e6:.1f} MB) and its card", file=sys.stderr)

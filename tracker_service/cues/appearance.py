@@ -469,9 +469,13 @@ def propose_leaves_in_window(mu: NDArray[np.float64], var: NDArray[np.float64], 
     return _best_k(c, k)
 
 
-def save_appearance(path: str | Path, net: AppearanceNet) -> Path:
-    """Write a network file (``.npz``: the layers' arrays and a JSON header with a CRC-32 of each)."""
+def save_appearance(path: str | Path, net: AppearanceNet, half: bool = False) -> Path:
+    """Write a network file (``.npz``: the layers' arrays and a JSON header with a CRC-32 of each).
+
+    ``half``: the weights stored as float16 (half the size: the file shipped in the package); they
+    are read back as float32."""
     p = Path(path)
+    dtype = np.float16 if half else np.float32
     p.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, NDArray[Any]] = {}
 
@@ -479,8 +483,8 @@ def save_appearance(path: str | Path, net: AppearanceNet) -> Path:
         spec = []
         for i, layer in enumerate(layers):
             w, b = f"{prefix}w{i}", f"{prefix}b{i}"
-            arrays[w] = np.ascontiguousarray(layer.weight, np.float32)
-            arrays[b] = np.ascontiguousarray(layer.bias, np.float32)
+            arrays[w] = np.ascontiguousarray(layer.weight, dtype)
+            arrays[b] = np.ascontiguousarray(layer.bias, dtype)
             spec.append({"kind": layer.kind, "stride": layer.stride, "pool": layer.pool, "relu": layer.relu,
                          "crc_w": zlib.crc32(arrays[w].tobytes()), "crc_b": zlib.crc32(arrays[b].tobytes())})
         return spec
@@ -527,6 +531,8 @@ def load_appearance(path: str | Path) -> AppearanceNet:
             if zlib.crc32(np.ascontiguousarray(w).tobytes()) != s["crc_w"] or \
                     zlib.crc32(np.ascontiguousarray(b).tobytes()) != s["crc_b"]:
                 raise AppearanceError(f"{p} is corrupt (checksum mismatch in {what}layer {i}); {hint}")
+            if w.dtype == np.float16 and b.dtype == np.float16:  # a half-precision file: computed in float32
+                w, b = w.astype(np.float32), b.astype(np.float32)
             if s["kind"] not in ("conv", "dense") or w.dtype != np.float32 or b.shape != (w.shape[0],) or \
                     (s["kind"] == "conv" and w.shape[2:] != (3, 3)) or (s["kind"] == "dense" and w.ndim != 2) or \
                     not 1 <= int(s["stride"]) <= 4:

@@ -588,3 +588,23 @@ def test_an_ensemble_pools_its_networks_readings_and_round_trips(tmp_path: Path,
     assert pool_readings([None, r]) is r and pool_readings([None]) is None
     with pytest.raises(ValueError):
         ensemble([a, constant_reading_net(a_mu, size=32)])
+
+
+def test_a_half_precision_file_reads_back_as_float32_with_the_same_outputs(tmp_path, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    """The shipped file stores float16 weights (half the size); read back, the network computes in
+    float32 and answers as the float32 file does, to float16's precision."""
+    from protocol.skeleton import N_JOINTS
+    from tracker_service.cues.appearance import AppearanceNet, Layer, forward, load_appearance, save_appearance
+
+    size = 16
+    conv = Layer("conv", rng.normal(0, 0.3, (4, 4, 3, 3)).astype(np.float32), rng.normal(0, 0.1, 4).astype(np.float32),
+                 2, True, True)
+    dense = Layer("dense", rng.normal(0, 0.1, (2 * N_JOINTS * 3, 4 * (size // 4) ** 2)).astype(np.float32),
+                  rng.normal(0, 0.1, 2 * N_JOINTS * 3).astype(np.float32), 1, False, False)
+    net = AppearanceNet(size, (conv, dense), {"test": "half"})
+    full, half = save_appearance(tmp_path / "f.npz", net), save_appearance(tmp_path / "h.npz", net, half=True)
+    assert half.stat().st_size < 0.7 * full.stat().st_size
+    back = load_appearance(half)
+    assert all(layer.weight.dtype == np.float32 for layer in back.layers)
+    x = rng.uniform(-0.5, 0.5, (3, size, size, 4)).astype(np.float32)
+    np.testing.assert_allclose(forward(back, x), forward(load_appearance(full), x), atol=5e-3)

@@ -9,6 +9,10 @@ Defaults (no options given)
   (``tcp/127.0.0.1:7447``); a *subscriber* connects to it and listens on ``tcp/127.0.0.1:0``
   (an ephemeral loopback port, so peers can still reach each other via gossip).
 
+In ``client`` mode (a LAN with a router, see ``docs/DEPLOY.md``) both roles get the subscriber's
+defaults: connect to ``DEFAULT_ENDPOINT`` and listen on ``tcp/127.0.0.1:0``, so a publisher in client
+mode never takes the router's port.
+
 ``--listen`` / ``--connect`` replace the role's default endpoints (both may be repeated).
 ``--config FILE`` loads a zenoh JSON5 configuration first; whatever the file sets wins over the
 defaults above, and explicit ``--mode/--connect/--listen`` options win over the file.
@@ -86,7 +90,8 @@ def build_config(
     ----------
     role : {"publisher", "subscriber"}
         Chooses the default endpoints: a publisher listens on ``DEFAULT_ENDPOINT``, a subscriber
-        connects to it (and listens on ``tcp/127.0.0.1:0``).
+        connects to it (and listens on ``tcp/127.0.0.1:0``). In ``client`` mode a publisher gets the
+        subscriber's defaults.
     mode : {"peer", "client", "router"}, optional
         Zenoh session mode; default ``peer`` (unless the config file sets one).
     connect, listen : list of str, optional
@@ -125,8 +130,11 @@ def build_config(
     if _untouched(conf, "scouting/multicast/enabled"):
         _insert(conf, "scouting/multicast/enabled", False)
 
-    default_listen = [DEFAULT_ENDPOINT] if role == "publisher" else [LOOPBACK_EPHEMERAL]
-    default_connect = [] if role == "publisher" else [DEFAULT_ENDPOINT]
+    # A client never serves others: whatever its role, it connects (to a router) and listens only on an
+    # ephemeral loopback port, so a tracker in client mode does not take the router's port 7447.
+    serves = role == "publisher" and json.loads(conf.get_json("mode")) != "client"
+    default_listen = [DEFAULT_ENDPOINT] if serves else [LOOPBACK_EPHEMERAL]
+    default_connect = [] if serves else [DEFAULT_ENDPOINT]
     if listen is not None:
         _insert(conf, "listen/endpoints", list(listen))
     elif _untouched(conf, "listen/endpoints"):

@@ -213,6 +213,13 @@ def test_help_says_how_to_listen_on_the_lan_and_version() -> None:
     assert out.returncode == 0 and out.stdout.startswith("mocap-router ") and "zenoh" in out.stdout
 
 
+def test_console_script_is_declared() -> None:
+    import tomllib
+
+    scripts = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["mocap-router"] == "protocol.net.router:main"
+
+
 def test_router_config_defaults_and_precedence(tmp_path: Path) -> None:
     conf = router_config()
     get = lambda c, k: json.loads(c.get_json(k))  # noqa: E731
@@ -234,6 +241,7 @@ def test_client_mode_publisher_connects_and_does_not_take_the_router_port() -> N
     assert json.loads(build_config("publisher").get_json("listen/endpoints")) == [DEFAULT_ENDPOINT]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_router_routes_between_clients_and_stops_cleanly(sig: signal.Signals) -> None:
     ep = free_tcp_endpoint()
@@ -251,6 +259,7 @@ def test_router_routes_between_clients_and_stops_cleanly(sig: signal.Signals) ->
         proc.kill()
 
 
+@pytest.mark.slow
 def test_router_errors_exit_1(tmp_path: Path) -> None:
     bad = tmp_path / "bad.json5"
     bad.write_text("{ mode: 42 }")

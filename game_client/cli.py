@@ -61,6 +61,16 @@ def _add_source(p: argparse.ArgumentParser) -> None:
                    help="resample the motion to this frame rate first (default: its own rate)")
 
 
+def _version() -> str:
+    """The installed ``mocap-service`` distribution's version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("mocap-service")
+    except PackageNotFoundError:
+        return "0.1.0"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``mocap-game`` argument parser (subcommands ``recognize``, ``play`` and ``run``)."""
     common = argparse.ArgumentParser(add_help=False)
@@ -73,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "down fast), fire ring (both arms up, down fast) - recognised from tracked 3D joints.",
         epilog=f"Run '{PROG} <command> --help' for the options of a command.",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
 
     rp = sub.add_parser("recognize", parents=[common], help="recognise gestures in a script or recording",

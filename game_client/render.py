@@ -6,7 +6,7 @@ projectile, the opponent's wind-up warning, hit flashes) and a panel on the righ
 round clock, the last recognised gesture and game events, and a stick figure of the player's
 pose as the camera sees it, mirrored so the player's left is on the left). :class:`FrameWriter`
 saves frames at a fixed rate of game time as numbered PNGs plus ``round.gif`` (imageio) and
-``round.mp4`` (``cv2.VideoWriter`` with the ``mp4v`` codec).
+``round.mp4`` (H.264, :class:`protocol.formats.video.VideoWriter`).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
+from protocol.formats.video import VideoWriter
 from protocol.skeleton import JOINT_INDEX, PARENTS
 
 from .game import GameConfig, GameRecord, GameSnapshot, Phase
@@ -174,7 +175,7 @@ class FrameWriter:
     mp4: bool = True
     frames: list[NDArray[np.uint8]] = field(default_factory=list)
     _next_t: float = 0.0
-    _video: cv2.VideoWriter | None = None
+    _video: VideoWriter | None = None
     _count: int = 0
 
     def __post_init__(self) -> None:
@@ -195,9 +196,7 @@ class FrameWriter:
             cv2.imwrite(str(self.out_dir / f"frame_{self._count:05d}.png"), img)
         if self.mp4:
             if self._video is None:
-                h, w = img.shape[:2]
-                self._video = cv2.VideoWriter(str(self.out_dir / "round.mp4"), cv2.VideoWriter.fourcc(*"mp4v"),
-                                              self.fps, (w, h))
+                self._video = VideoWriter(self.out_dir / "round.mp4", self.fps)
             self._video.write(img)
         self.frames.append(img)
         self._count += 1
@@ -206,7 +205,7 @@ class FrameWriter:
         """Finish the GIF and MP4; returns the files written besides the PNGs."""
         out: list[Path] = []
         if self._video is not None:
-            self._video.release()
+            self._video.close()
             self._video = None
             out.append(self.out_dir / "round.mp4")
         if self.frames:

@@ -78,6 +78,16 @@ def _tracker_id(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _version() -> str:
+    """The installed ``mocap-service`` distribution's version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("mocap-service")
+    except PackageNotFoundError:
+        return "0.1.0"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``mocap-cloth`` argument parser (subcommands ``simulate`` and ``run``)."""
     common = argparse.ArgumentParser(add_help=False)
@@ -86,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--particles", type=_particles, default=DEFAULT_PARTICLES, metavar="N",
                         help=f"approximate number of cloth particles (default {DEFAULT_PARTICLES})")
     common.add_argument("--video", type=Path, metavar="PATH",
-                        help="render avatar + cloth to PATH: .mp4 (OpenCV mp4v) or .gif")
+                        help="render avatar + cloth to PATH: .mp4 (H.264) or .gif")
     common.add_argument("--video-fps", type=_positive_float, default=30.0, metavar="HZ",
                         help="frame rate of rendered frames and videos (default 30)")
     common.add_argument("--size", type=_size, default=(480, 480), metavar="WxH",
@@ -100,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Dress the tracked (or recorded) person's avatar in a simulated cape or skirt: a "
                     "mass-spring cloth with strain limiting and body collision, rendered offscreen.",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
 
     sp = sub.add_parser(

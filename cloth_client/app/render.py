@@ -184,7 +184,8 @@ class ClothRenderer:
 
 
 class FrameWriter:
-    """Write RGB frames to a video (``.mp4`` via OpenCV 'mp4v', ``.gif`` via imageio) or, for any
+    """Write RGB frames to a video (``.mp4``: H.264 through :class:`protocol.formats.video.VideoWriter`;
+    ``.gif`` via imageio) or, for any
     other path, as numbered PNG files in that directory.
 
     Parameters
@@ -207,10 +208,9 @@ class FrameWriter:
         """Append one ``(H, W, 3) uint8`` frame."""
         if self.kind == "mp4":
             if self._video is None:
-                h, w = rgb.shape[:2]
-                self._video = cv2.VideoWriter(str(self.path), cv2.VideoWriter.fourcc(*"mp4v"), self.fps, (w, h))
-                if not self._video.isOpened():
-                    raise OSError(f"OpenCV cannot write {self.path}")
+                from protocol.formats.video import VideoWriter
+
+                self._video = VideoWriter(self.path, self.fps)
             self._video.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         elif self.kind == "gif":
             self._gif.append(rgb)
@@ -221,7 +221,7 @@ class FrameWriter:
     def close(self) -> None:
         """Finish the file (GIF frames are encoded here)."""
         if self._video is not None:
-            self._video.release()
+            self._video.close()
             self._video = None
         if self.kind == "gif" and self._gif:
             import imageio.v2 as imageio  # pyrender's own dependency

@@ -158,3 +158,13 @@ def test_body_with_max_values_is_never_fatal() -> None:
     assert client.c["invalid_body"] == 1 and client.height is None
     _play(client, _frames("transform"), 0.0)
     assert out.gestures() == ["transform"]
+
+
+def test_every_cli_answers_version() -> None:
+    import subprocess
+    import sys
+
+    clis = (("game_client", "mocap-game"), ("cloth_client", "mocap-cloth"), ("tracker_service", "mocap-tracker"))
+    for module, prog in clis:
+        out = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0 and out.stdout.startswith(f"{prog} "), (module, out.stdout, out.stderr)

@@ -16,22 +16,19 @@ the same window where one exists.
 from __future__ import annotations
 
 import json
-import os
-import queue
 import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 import zenoh
+from child_process import Proc, child_env
 
 from protocol.net.router import build_parser, router_config
 from protocol.net.session import build_config, free_tcp_endpoint, open_session, undeclare_quietly
@@ -54,59 +51,6 @@ PASSWORDS = {"tracker": "tracker-secret-1", "game": "game-secret-2"}
 
 
 # --- processes -------------------------------------------------------------------------------------
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
-    return env
-
-
-class Proc:
-    """A child process whose stderr lines are collected by a reader thread."""
-
-    def __init__(self, argv: list[str]):
-        self.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                      env=_env(), cwd=REPO)
-        self.err: list[str] = []
-        self.out: list[str] = []
-        self._q: queue.Queue[str] = queue.Queue()
-        threading.Thread(target=self._pump, args=(self.popen.stderr, self.err, self._q), daemon=True).start()
-        threading.Thread(target=self._pump, args=(self.popen.stdout, self.out, None), daemon=True).start()
-
-    @staticmethod
-    def _pump(stream: Any, sink: list[str], q: queue.Queue[str] | None) -> None:
-        for line in stream:
-            sink.append(line.rstrip("\n"))
-            if q is not None:
-                q.put(line)
-
-    def wait_for(self, needle: str, timeout: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                if needle in self._q.get(timeout=0.05):
-                    return True
-            except queue.Empty:
-                if self.popen.poll() is not None:
-                    return False
-        return False
-
-    def stop(self, sig: signal.Signals = signal.SIGINT, timeout: float = 2.0) -> tuple[int | None, float]:
-        """Send ``sig`` and wait up to ``timeout`` s: (exit status or None, seconds taken)."""
-        t0 = time.monotonic()
-        if self.popen.poll() is None:
-            self.popen.send_signal(sig)
-        try:
-            rc = self.popen.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            rc = None
-        return rc, time.monotonic() - t0
-
-    def kill(self) -> None:
-        if self.popen.poll() is None:
-            self.popen.kill()
-        self.popen.wait(timeout=5)
 
 
 @contextmanager
@@ -209,7 +153,7 @@ def exchange(pairs: list[tuple[zenoh.Session | None, str, zenoh.Session | None, 
 def test_help_says_how_to_listen_on_the_lan_and_version() -> None:
     text = build_parser().format_help()
     assert DEFAULT_ENDPOINT in text and "tcp/0.0.0.0:7447" in text and "--mode client --connect" in text
-    out = subprocess.run([*ROUTER, "--version"], capture_output=True, text=True, timeout=20, env=_env(), cwd=REPO)
+    out = subprocess.run([*ROUTER, "--version"], capture_output=True, text=True, timeout=20, env=child_env(), cwd=REPO)
     assert out.returncode == 0 and out.stdout.startswith("mocap-router ") and "zenoh" in out.stdout
 
 
@@ -266,7 +210,8 @@ def test_router_errors_exit_1(tmp_path: Path) -> None:
     ep = free_tcp_endpoint()
     with running_router(endpoint=ep):
         for argv in (["--config", str(tmp_path / "missing.json5")], ["--config", str(bad)], ["--listen", ep]):
-            out = subprocess.run([*ROUTER, *argv], capture_output=True, text=True, timeout=20, env=_env(), cwd=REPO)
+            out = subprocess.run([*ROUTER, *argv], capture_output=True, text=True, timeout=20, env=child_env(),
+                                 cwd=REPO)
             assert out.returncode == 1, (argv, out.stderr)
             assert "mocap-router:" in out.stderr
 

@@ -8,12 +8,9 @@ Subscribers here use channel handlers (no callbacks), so a failing test cannot h
 from __future__ import annotations
 
 import json
-import os
-import queue
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from child_process import Proc
 
 from protocol.net.session import build_config, free_tcp_endpoint, open_session, undeclare_quietly
 from protocol.skeleton import default_body
@@ -37,45 +35,6 @@ _SCRIPT = Path(sys.executable).with_name("mocap-tracker")
 #: ``mocap-tracker`` (the console script) if installed, else ``python -m tracker_service``.
 TRACKER = [str(_SCRIPT)] if _SCRIPT.is_file() else [sys.executable, "-m", "tracker_service"]
 ECHO = [sys.executable, "-m", "protocol", "echo"]
-
-
-class Proc:
-    """A child process whose stdout/stderr lines are collected by reader threads."""
-
-    def __init__(self, argv: list[str]):
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
-        self.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                      env=env, cwd=REPO)
-        self.out: list[str] = []
-        self.err: list[str] = []
-        self._err_q: queue.Queue[str] = queue.Queue()
-        for stream, sink, q in ((self.popen.stdout, self.out, None), (self.popen.stderr, self.err, self._err_q)):
-            threading.Thread(target=self._pump, args=(stream, sink, q), daemon=True).start()
-
-    @staticmethod
-    def _pump(stream: Any, sink: list[str], q: queue.Queue[str] | None) -> None:
-        for line in stream:
-            sink.append(line.rstrip("\n"))
-            if q is not None:
-                q.put(line)
-
-    def wait_for(self, needle: str, timeout: float = 15.0) -> bool:
-        """Wait for a stderr line containing ``needle`` (False on timeout or exit)."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                if needle in self._err_q.get(timeout=0.05):
-                    return True
-            except queue.Empty:
-                if self.popen.poll() is not None:
-                    return False
-        return False
-
-    def kill(self) -> None:
-        if self.popen.poll() is None:
-            self.popen.kill()
-        self.popen.wait(timeout=5)
 
 
 @pytest.fixture

@@ -1,0 +1,36 @@
+"""The appearance network ships in the package, loads by default and is the network its card describes."""
+
+from __future__ import annotations
+
+import json
+
+from tracker_service.build.model_card import MODELS_DIR, check_card
+from tracker_service.cues.appearance import shipped_appearance_path
+
+
+def test_the_network_ships_with_its_card() -> None:
+    path = shipped_appearance_path()
+    assert path is not None and path.parent == MODELS_DIR
+    assert path.stat().st_size < 8e6  # small enough to version
+    card = json.loads(path.with_suffix(".json").read_text())
+    for key in ("sha256", "training_command", "training_data_sha256", "validation", "probe", "version"):
+        assert key in card
+    assert card["file"] == path.name
+
+
+def test_the_shipped_network_is_the_one_its_card_measured() -> None:
+    """sha256, the outputs on the card's probe input and the validation figures all agree."""
+    path = shipped_appearance_path()
+    assert path is not None
+    card = json.loads(path.with_suffix(".json").read_text())
+    assert check_card(card, path) == []
+    for member in card["validation"]:  # the validation error the training reported, % of the height
+        assert 0 < member["val_rms_z"] < 0.1 and 0 < member["val_rms_x"] < 0.05
+
+
+def test_the_tracker_loads_it_by_default() -> None:
+    from tracker_service.app.resources import ensure_appearance
+
+    net = ensure_appearance(None, train_if_missing=False)
+    assert net is not None and len(net.members) + 1 == json.loads(
+        shipped_appearance_path().with_suffix(".json").read_text())["members"]  # type: ignore[union-attr]

@@ -231,6 +231,16 @@ def _eval_config(config: TrackerConfig, options: EvalOptions, scene: SyntheticSc
     return cfg
 
 
+def jpeg_roundtrip(image: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
+    """``image`` (H, W, 3) uint8 BGR encoded as JPEG at ``quality`` and decoded again."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR), np.uint8)
+
+
 def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, options: EvalOptions,
                     progress: Callable[[int, int], None] | None = None,
                     observe: Callable[[SceneFrame, TrackerState, FrameResult], None] | None = None) -> dict[str, Any]:
@@ -266,7 +276,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
         for i in range(n):
             fr = scene.frame(i)
             was_tracking = state.phase == "tracking"  # the frame that ends initialisation scores the bodies
-            state, res = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
+            image = fr.image if options.jpeg_quality is None else jpeg_roundtrip(fr.image, options.jpeg_quality)
+            state, res = process_frame(state, image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
             if observe is not None:
                 observe(fr, state, res)
             if not fr.truth.present:
@@ -320,4 +331,5 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "subject_height_m": round(float(scene.subject.spec.height), 3),
         "reinitialisations": int(state.reinits),
         "poses_sha256": tally.digest.hexdigest(),
+        "jpeg_quality": options.jpeg_quality,
     }

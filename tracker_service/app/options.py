@@ -172,6 +172,9 @@ class EvalOptions:
         :func:`tracker_service.app.evaluate.subject_measurements`: ``height``, ``group``, girths,
         ``shoulder``, ``arm``, ``leg``) instead of letting it choose a body model: what a user who
         enters them gets. Empty: the tracker's own choice.
+    jpeg_quality : int, optional
+        Every rendered frame passes through JPEG at this quality before the tracker sees it (a
+        webcam's MJPEG); None: lossless.
     """
 
     frames: int | None = None
@@ -181,6 +184,7 @@ class EvalOptions:
     fps: float = 30.0
     in_place_travel_m: float = 2.0
     subject_measurements: tuple[str, ...] = ()
+    jpeg_quality: int | None = None
 
 
 @dataclass(frozen=True)

@@ -56,3 +56,16 @@ def test_acceleration_error_is_zero_for_a_constant_offset_and_counts_only_consec
     assert acceleration_error(gap, est[:6], true[:6]) == pytest.approx(0.0, abs=1e-12)
     assert math.isnan(acceleration_error(np.array([0, 2, 4]), est[:3], true[:3]))
     assert math.isnan(acceleration_error(np.arange(2), est[:2], true[:2]))
+
+
+def test_jpeg_roundtrip_degrades_like_mjpeg() -> None:
+    """``eval --jpeg-quality Q`` feeds the tracker each frame through JPEG: same shape and type,
+    small errors that grow as the quality falls."""
+    from tracker_service.app.evaluate import jpeg_roundtrip
+
+    rng = np.random.default_rng(0)
+    img = np.clip(rng.normal(120, 40, (240, 320, 3)), 0, 255).astype(np.uint8)
+    hi, lo = jpeg_roundtrip(img, 95), jpeg_roundtrip(img, 30)
+    assert hi.shape == img.shape and hi.dtype == np.uint8
+    err = [np.abs(x.astype(int) - img).mean() for x in (hi, lo)]
+    assert 0 < err[0] < err[1]

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any, TextIO
 
-from tracker_service.app.commands.common import add_tracker_args, add_video_arg, tracker_options
+from tracker_service.app.commands.common import UsageError, add_tracker_args, add_video_arg, tracker_options
 from tracker_service.app.options import EvalCommandOptions, EvalOptions
 from tracker_service.app.tracker_config import subject_keys
 
@@ -41,6 +41,9 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     ep.add_argument("--seed", type=int, default=0, help="scene seed (subject, room, lighting, noise)")
     ep.add_argument("--force-loss-every", type=float, default=0.0, metavar="S",
                     help="force a tracking loss every S seconds and measure re-acquisition (default: never)")
+    ep.add_argument("--jpeg-quality", type=int, metavar="Q",
+                    help="pass every frame through JPEG at quality Q (1-100) first, as a webcam's MJPEG does "
+                         "(default: lossless)")
     ep.add_argument("--json", action="store_true", help="print only the JSON object (progress stays on stderr)")
     add_video_arg(ep)
     return ep
@@ -48,9 +51,12 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
 
 def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     tracker = tracker_options(args, subject=True)
+    if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:
+        raise UsageError("--jpeg-quality must be in 1..100")
     return EvalCommandOptions(motion=args.bvh or args.script, tracker=tracker, json=args.json,
                               evaluation=EvalOptions(frames=args.frames, seed=args.seed,
-                                                     force_loss_every_s=args.force_loss_every),
+                                                     force_loss_every_s=args.force_loss_every,
+                                                     jpeg_quality=args.jpeg_quality),
                               progress=not args.quiet, video=args.video)
 
 

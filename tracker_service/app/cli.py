@@ -35,6 +35,7 @@ from tracker_service.app.commands import (
     build_db,
     calibrate,
     demo,
+    list_trackers,
     record,
     render,
     replay,
@@ -48,7 +49,8 @@ __all__ = ["COMMANDS", "PROG", "build_parser", "main", "version"]
 
 PROG = "mocap-tracker"
 #: The commands in the order ``--help`` lists them.
-COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render, record, calibrate)
+COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render, record, calibrate,
+                                 list_trackers)
 _BY_NAME: dict[str, Command] = {c.NAME: c for c in COMMANDS}
 
 

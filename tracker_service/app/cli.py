@@ -13,6 +13,8 @@ Subcommands
 ``render``            render the synthetic camera view of a motion to images or a video.
 ``record``            subscribe to a tracker's poses and write the session as BVH, JSON lines and CSV.
 ``calibrate``         make the camera file ``run``/``eval --camera`` read, from checkerboard images.
+``list``              the trackers publishing on the network.
+``bench``             compare the pose estimators on the same rendered silhouettes (table and plots).
 
 Exit status: 0 on success (including a clean stop by Ctrl-C / SIGTERM), 1 when the command failed
 (one line on stderr says why), 2 for bad command-line arguments.
@@ -32,6 +34,7 @@ from collections.abc import Callable
 from protocol.wire.codec import ProtocolError
 from tracker_service.app.commands import (
     Command,
+    bench,
     build_db,
     calibrate,
     demo,
@@ -50,7 +53,7 @@ __all__ = ["COMMANDS", "PROG", "build_parser", "main", "version"]
 PROG = "mocap-tracker"
 #: The commands in the order ``--help`` lists them.
 COMMANDS: tuple[Command, ...] = (replay, demo, build_db, train_appearance, run, eval_command, render, record, calibrate,
-                                 list_trackers)
+                                 list_trackers, bench)
 _BY_NAME: dict[str, Command] = {c.NAME: c for c in COMMANDS}
 
 

@@ -37,7 +37,8 @@ def parse(argv: list[str]) -> Any:
 
 def test_every_command_is_registered_once_in_help_order() -> None:
     assert [c.NAME for c in cli.COMMANDS] == ["replay", "demo", "build-db", "train-appearance", "run", "eval",
-                                              "render", "record", "calibrate", "list"]
+                                              "render", "record", "calibrate", "list",
+                                              "bench"]
 
 
 def test_run_arguments_become_run_options() -> None:

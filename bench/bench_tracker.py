@@ -111,7 +111,7 @@ def main() -> int:
                     help="the appearance cue's network (default: out/appearance/net.npz, trained on first use)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    threadpool_limits(1, user_api="blas")  # one core per frame, as mocap-tracker runs (tracker_service/_entry.py)
+    threadpool_limits(1, user_api="blas")  # one core per frame, as mocap-tracker runs (tracker_service/app/entry.py)
     if args.cpu >= 0:
         if args.cpu not in os.sched_getaffinity(0):
             raise SystemExit(f"--cpu {args.cpu}: not one of this process's CPUs {sorted(os.sched_getaffinity(0))}")

@@ -251,7 +251,7 @@ def recording(path: str, fps: float | None = None) -> tuple[NDArray[np.float64],
     """Frame times ``(N,)``, joints ``(N, 24, 3)`` and body height of a shared recording.
 
     ``path`` is relative to :func:`protocol.formats.mocap_data.mocap_root`; the motion is retargeted onto the
-    default body by :func:`protocol.motion.load_motion` (optionally resampled to ``fps``).
+    default body by :func:`protocol.formats.load.load_motion` (optionally resampled to ``fps``).
     """
     from protocol.formats.load import load_motion
     from protocol.formats.mocap_data import recording_path

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from protocol.wire.messages import PoseFrame
 from tracker_service.app.options import TrackerOptions
-from tracker_service.app.resources import ensure_db
+from tracker_service.app.resources import ensure_db, requested_camera
 from tracker_service.app.tracker_config import tracker_config
 from tracker_service.camera import Camera
 from tracker_service.paths import REPO_ROOT
@@ -60,7 +60,7 @@ class Tracker:
     def __init__(self, options: TrackerOptions | None = None, config: TrackerConfig | None = None,
                  tracker_id: str = "python") -> None:
         opts = options or TrackerOptions()
-        self._loaded = ensure_db(opts.db)
+        self._loaded = ensure_db(opts.db, camera=requested_camera(opts))  # templates for the user's camera
         self.config: TrackerConfig = config if config is not None else tracker_config(opts)
         self.camera: Camera = self._loaded.camera
         self.tracker_id = tracker_id

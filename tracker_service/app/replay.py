@@ -10,7 +10,7 @@ Output frame ``k`` (``k = 0, 1, 2, ...``, continuous across loops) is stamped wi
 frame, "hold"), where ``fps`` is the motion's frame rate, ``F`` its frame count and ``rate`` the
 output rate (default ``fps``). At ``rate == fps`` this is frame ``k mod F`` at its own time plus one
 motion duration per completed loop, and ``seq == k``. Smooth resampling (interpolating
-rotations) belongs in :func:`protocol.motion.load_motion`; this module only maps frame indices.
+rotations) belongs in :func:`protocol.formats.load.load_motion`; this module only maps frame indices.
 """
 
 from __future__ import annotations

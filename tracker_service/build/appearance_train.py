@@ -1,7 +1,8 @@
 """Training the appearance cue's network (:mod:`tracker_service.cues.appearance`) on rendered views of
 the training recordings and gesture scripts.
 
-Data: every ``every``-th frame of every training take (the held-out takes, ``db_build.is_held_out``,
+Data: every ``every``-th frame of every training take (the held-out takes,
+``tracker_service.build.database.is_held_out``,
 are never used; the gesture scripts the database holds are takes too, numbered from
 :data:`SCRIPT_ROW_BASE`) played by the synthetic scene on a random person (``seed_base + row``
 chooses the person, the outfit, the room and the lighting; the benchmark subjects' seeds 3, 7 and

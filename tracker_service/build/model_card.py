@@ -100,12 +100,12 @@ def check_card(card: dict[str, Any], net_file: Path, atol: float = 1e-4) -> list
     net = load_appearance(net_file)
     got = probe_outputs(net)
     want = card["probe"]["outputs"]
-    if len(got) != len(want) or any(not np.allclose(g, w, atol=atol) for g, w in zip(got, want, strict=False)):
+    if len(got) != len(want) or any(not np.allclose(g, w, atol=atol) for g, w in zip(got, want, strict=True)):
         problems.append("probe outputs differ")
     members = net.meta.get("members") or [net.meta]
-    for m, v in zip(members, card["validation"], strict=False):
-        if any(m.get(k) != val for k, val in v.items()):
-            problems.append("validation figures differ")
+    if len(members) != len(card["validation"]) or any(
+            any(m.get(k) != val for k, val in v.items()) for m, v in zip(members, card["validation"], strict=True)):
+        problems.append("validation figures differ")
     return problems
 
 

@@ -70,7 +70,8 @@ def shipped_appearance_path() -> Path | None:
 
 
 def default_appearance_path() -> Path:
-    """``<repo>/out/appearance/net.npz``: where ``train-appearance`` writes and ``run``/``eval`` look."""
+    """``out/appearance/net.npz``: where ``train-appearance`` writes (``run``/``eval`` use it when no
+    network ships in the package, or with ``--appearance PATH``)."""
     return out_dir() / "appearance" / "net.npz"
 
 

@@ -1,5 +1,9 @@
-"""The tracker's per-frame pipeline as a pure state machine: frame -> silhouette -> features ->
-tree filter -> pose, joints, visibility and confidence.
+"""The tracker's per-frame pipeline as a pure state machine: frame -> silhouette -> observe (features,
+cues) -> estimate (the configured estimator) -> publish (refinement, placement, smoothing) -> pose,
+joints, visibility and confidence. A pose the silhouette does not support (an implausible pelvis, or a
+confidence below ``TrackerConfig.min_confidence``) is withheld and leaves no trace in the publishing
+stages; when no pose was supported since the background was learned, the background is learned again,
+robustly (a person in view at start).
 
 Phases (``TrackerState.phase``):
 
@@ -111,7 +115,7 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig)
     few seconds, learned robustly (per-pixel medians: the room behind a moving person)."""
     if state.relearning:
         n = state.frames_in_phase + 1
-        frames = (*state.learning, frame) if n % config.relearn_every == 1 else state.learning
+        frames = (*state.learning, frame) if (n - 1) % config.relearn_every == 0 else state.learning
         if len(frames) >= max(config.relearn_frames, 3):
             return replace(state, phase="waiting", background=learn_background_robust(np.stack(frames)), learning=(),
                            relearning=False, frames_in_phase=0, supported=0)
@@ -245,7 +249,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
                         statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
                         reading=None)
     if not mask.any():  # the person left: wait for them to come back to the centre
-        state = replace(state, phase="waiting", filter=estimator.init(), reading=None)
+        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     fstate = state.filter
     if not config.occlusion and isinstance(fstate, FilterState):  # eq. 14 off (DM1)
@@ -259,9 +263,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     t3 = time.perf_counter()
     pose = (est.pose_mean if config.use_mean_pose else est.pose_map).copy()
     # phases: the body chosen while initialising
-    move = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config, estimator)
+    chosen = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config, estimator)
     # publish
-    pose, move = publish(move, state, frame, mask, ev, est, pose, db, db_body, camera, config)
+    pose, move = publish(chosen, state, frame, mask, ev, est, pose, db, db_body, camera, config)
     nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised))
     joints = fk(pose, nxt.body)
     t4 = time.perf_counter()
@@ -270,10 +274,11 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     why = implausible(joints, camera)  # never a pose without grounds
     if why is None and est.confidence < config.min_confidence:
         why = "low-confidence"
-    if why is not None:
+    if why is not None:  # the publishing stages' memory as before them: a withheld pose leaves no trace
+        nxt = replace(chosen.state, reinits=nxt.reinits)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
-                                est.reinitialised, move.body_changed, why)
+                                est.reinitialised, chosen.body_changed, why)
     nxt = replace(nxt, withheld=0, supported=nxt.supported + 1)
     return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
                             est.evaluations, ms, est.reinitialised, move.body_changed)

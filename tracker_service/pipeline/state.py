@@ -71,8 +71,10 @@ class FrameResult:
     body_changed : bool
         The body model was (re)chosen in this frame.
     rejected : str or None
-        Why this frame's pose was withheld (``pose`` and ``joints`` are None): the estimate put the
-        person where no person can be seen from this camera (:func:`implausible`).
+        Why this frame's pose was withheld (``pose`` and ``joints`` are None): ``'depth'``,
+        ``'height'`` or ``'non-finite'`` when the estimate put the person where no person can be seen
+        from this camera (:func:`tracker_service.pipeline.process.implausible`), ``'low-confidence'``
+        below ``TrackerConfig.min_confidence``.
     """
 
     phase: Phase

@@ -449,7 +449,7 @@ def test_proposed_leaves_are_evaluated_beside_the_trees_candidates(small_db) -> 
 
 def test_the_published_pose_is_refined_towards_the_reading(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
     """With the cue, the published joints move toward what the network reads (ELMO's local
-    refinement, ``pose_refinement.py``); ``refine=None`` publishes the filter's pose, and the filter
+    refinement, ``pipeline/refinement.py``); ``refine=None`` publishes the filter's pose, and the filter
     itself (its posterior) is the same either way."""
     from protocol.motion import ground
     from tracker_service.body.raster import render_silhouette

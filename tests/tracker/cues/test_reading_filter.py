@@ -1,4 +1,4 @@
-"""The Kalman filter of the appearance network's readings (tracker_service/reading_filter.py)."""
+"""The Kalman filter of the appearance network's readings (tracker_service/cues/reading_filter.py)."""
 
 import numpy as np
 import pytest

@@ -77,7 +77,10 @@ def alive_trackers(session: Any, wait_s: float) -> dict[str, dict[str, Any]]:
     found: dict[str, dict[str, Any]] = {}
     for reply in session.liveliness().get(ALL_ALIVE, timeout=2.0):
         if reply.ok is not None:
-            tid = split_key(str(reply.ok.key_expr)).id
+            try:
+                tid = split_key(str(reply.ok.key_expr)).id
+            except ValueError:  # a token that is not a tracker's: not ours to list
+                continue
             found[tid] = statuses.get(tid, unknown)
     return found
 

@@ -49,7 +49,7 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
                          "first, 5000:2,6000:2,2000:2,3000:2 for the second)")
     pg = ap.add_mutually_exclusive_group()
     pg.add_argument("--posture-passes", type=parse_passes, metavar="SEED:EVERY,...[;...]",
-                    help="more passes with the poses varied (stooped, knees bent: tracker_service/"
+                    help="more passes with the poses varied (stooped, knees bent: tracker_service/build/"
                          "posture_variation.py), one list per network (default: 7000:3 for the first, 8000:3 "
                          "for the second, none for more)")
     pg.add_argument("--no-posture", action="store_true", help="no posture-varied passes")

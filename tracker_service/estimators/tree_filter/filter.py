@@ -86,12 +86,12 @@ def predict_leaves(state: FilterState, db: FilterDB, params: FilterParams) -> ND
     inv_var = 1.0 / (db.sigma_part.astype(np.float64) ** 2 * m2)  # (N_PARTS,)
     prior = np.zeros(nl)
     # eq. 13: Gaussian around the previous pose over each leaf's pose-space neighbours, plus eq. 5's
-    # transition histograms (numba; reference: filter_reference.motion_prior_reference)
+    # transition histograms (numba; reference: reference.motion_prior_reference)
     leaf_prior_kernel(np.ascontiguousarray(state.leaves, np.int64), np.ascontiguousarray(state.weights, np.float64),
                       db.nbr_idx, db.nbr_dpart, inv_var, db.trans_ptr, db.trans_idx, db.trans_p,
                       float(params.hist_weight), prior)
     # re-acquisition mass, restricted to headings near the current one (numba; reference:
-    # filter_reference.heading_mass_reference)
+    # reference.heading_mass_reference)
     mean_heading = support_heading(state, db)
     if not heading_mass_kernel(prior, np.ascontiguousarray(db.leaf_heading, np.float32), allowed,
                                mean_heading, float(params.max_turn), float(params.uniform_mass)):
@@ -216,7 +216,7 @@ def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]]
 
 def mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
     """Weighted mean of poses ``(n, P)``: root averaged, rotations as the normalised weighted sum
-    of quaternions on one hemisphere (numba; reference: filter_reference.mean_pose_reference).
+    of quaternions on one hemisphere (numba; reference: reference.mean_pose_reference).
 
     Returns
     -------
@@ -240,7 +240,7 @@ def _cost(d: NDArray[np.float64], places: NDArray[np.float64], hyps: NDArray[np.
     hypotheses ``(n, H, 3)``, the height hypothesis's scale held to the motion prediction's
     ``motion_scale`` (a body off the floor has not changed depth; a wrong pose cannot buy the
     silhouette's height by a jump in depth) at ``airborne_cost`` more (numba; reference:
-    filter_reference.level_cost_reference).
+    reference.level_cost_reference).
 
     Returns
     -------

@@ -33,7 +33,10 @@ from protocol.skeleton import (
     default_body,
 )
 
-__all__ = ["Motion", "ground", "is_native", "load_bvh_motion", "resample", "sample_poses"]
+#: Highest frame rate accepted (Hz), matching the shortest BVH ``Frame Time`` read (1e-4 s).
+MAX_FPS = 1e4
+
+__all__ = ["MAX_FPS", "Motion", "ground", "is_native", "load_bvh_motion", "resample", "sample_poses"]
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +75,8 @@ class Motion:
             raise ValueError(f"poses must be (F, {POSE_SIZE}), got {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ValueError("poses contain NaN or inf")
-        if not (self.fps > 0 and np.isfinite(self.fps)):
-            raise ValueError(f"fps must be positive, got {self.fps}")
+        if not (0 < self.fps <= MAX_FPS):
+            raise ValueError(f"{self.source or self.name or 'motion'}: fps must be in (0, {MAX_FPS:g}], got {self.fps}")
         object.__setattr__(self, "poses", p)
         v = np.ones(len(p), dtype=bool) if self.valid is None else np.asarray(self.valid, dtype=bool)
         if v.shape != (len(p),):
@@ -109,8 +112,8 @@ def resample(motion: Motion, fps: float) -> Motion:
     Motion
         Same duration; a frame is valid if both source frames around it are.
     """
-    if not (fps > 0 and np.isfinite(fps)):
-        raise ValueError(f"fps must be positive, got {fps}")
+    if not (0 < fps <= MAX_FPS):
+        raise ValueError(f"{motion.source or motion.name or 'motion'}: fps must be in (0, {MAX_FPS:g}], got {fps}")
     if abs(fps - motion.fps) < 1e-9:
         return motion
     n_out = max(1, int(np.floor((motion.n_frames - 1) * fps / motion.fps + 1e-9)) + 1)
@@ -199,6 +202,9 @@ def load_bvh_motion(path: str | Path, *, body: Body | None = None, fps: float | 
     -------
     Motion
     """
+    for what, v in (("fps", fps), ("source_fps", source_fps)):
+        if v is not None and not (0 < v <= MAX_FPS):
+            raise ValueError(f"{path}: {what} must be in (0, {MAX_FPS:g}], got {v}")
     bvh = read_bvh(path)
     if is_native(bvh):
         m = _native_motion(bvh, scale)

@@ -33,6 +33,14 @@ _ROT = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 _POS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
 
 
+#: Accepted ``Frame Time`` range (seconds): 10 kHz down to one frame per 10 s.
+MIN_FRAME_TIME = 1e-4
+MAX_FRAME_TIME = 10.0
+#: Largest accepted magnitude of a position channel (file units) and a rotation channel (degrees).
+MAX_TRANSLATION = 1e4
+MAX_ROTATION_DEG = 1e6
+
+
 class BvhError(ValueError):
     """A malformed BVH file; the message names the file and the line."""
 
@@ -160,6 +168,7 @@ def read_bvh(path: str | Path, offset_mode: OffsetMode = "auto", *, text: str | 
     n_channels = sum(len(j.channels) for j in joints)
     motion = _parse_motion(path, text[m.end():], motion_line0, n_channels)
     frames, frame_time = motion
+    _check_channel_values(path, joints, frames, motion_line0)
     mode = _resolve_offset_mode(joints, frames, offset_mode)
     return BvhFile(path=str(path), joints=tuple(joints), frame_time=frame_time, motion=frames, offset_mode=mode)
 
@@ -266,6 +275,10 @@ def _parse_motion(path: str | Path, body: str, line0: int, n_channels: int) -> t
         frame_time = float("nan")
     if not (frame_time > 0 and np.isfinite(frame_time)):
         raise BvhError(path, line0 + k + 1, "expected 'Frame Time: <seconds > 0>'")
+    if not (MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME):
+        raise BvhError(path, line0 + k + 1, f"Frame Time {frame_time:g} s is outside the accepted range "
+                       f"[{MIN_FRAME_TIME:g}, {MAX_FRAME_TIME:g}] s ({1 / MAX_FRAME_TIME:g} to "
+                       f"{1 / MIN_FRAME_TIME:g} fps)")
     data_lines = lines[k + 2:]
     while data_lines and not data_lines[-1].strip():
         data_lines.pop()
@@ -292,6 +305,25 @@ def _parse_motion(path: str | Path, body: str, line0: int, n_channels: int) -> t
                 raise BvhError(path, first + r, "NaN or infinite value in motion data")
         raise BvhError(path, first, "malformed motion data")  # pragma: no cover - defensive
     return values.reshape(n_frames, n_channels), frame_time
+
+
+def _check_channel_values(path: str | Path, joints: list[BvhJoint], frames: NDArray[np.float64],
+                          motion_line0: int) -> None:
+    """Reject absurd channel values (|position| > MAX_TRANSLATION, |rotation| > MAX_ROTATION_DEG)."""
+    if frames.size == 0:
+        return
+    # the first data line: MOTION, Frames:, Frame Time: (blank lines between are rare; the line is
+    # approximate only when they occur)
+    first = motion_line0 + 3
+    for j in joints:
+        for c, ch in enumerate(j.channels):
+            col = frames[:, j.channel_start + c]
+            limit, unit = (MAX_TRANSLATION, "units") if ch in _POS else (MAX_ROTATION_DEG, "degrees")
+            bad = np.flatnonzero(~(np.abs(col) <= limit))
+            if bad.size:
+                r = int(bad[0])
+                raise BvhError(path, first + r, f"absurd value {col[r]:g} in channel {ch} of joint {j.name} "
+                               f"(frame {r + 1}; accepted |value| <= {limit:g} {unit})")
 
 
 def _resolve_offset_mode(joints: list[BvhJoint], frames: NDArray[np.float64],

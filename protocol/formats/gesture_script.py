@@ -88,6 +88,11 @@ class ScriptError(ValueError):
     """A malformed gesture script; the message names the file and the offending key."""
 
 
+#: Longest script accepted (seconds): key times and ``duration`` beyond it are rejected before
+#: anything is sampled (a typo such as ``duration = 1e9`` would otherwise allocate hundreds of GiB).
+MAX_DURATION_S = 3600.0
+
+
 @dataclass(frozen=True)
 class _Key:
     t: float
@@ -160,6 +165,9 @@ def parse_script(text: str, origin: str = "<script>") -> Script:
         t = _num(k.get("t"), f"{where}: t")
         if t <= last_t or t < 0:
             raise ScriptError(f"{where}: times must start at >= 0 and increase (t = {t})")
+        if t > MAX_DURATION_S:
+            raise ScriptError(f"{where}: t = {t} s is beyond the longest script allowed "
+                              f"({MAX_DURATION_S:g} s = 1 hour)")
         last_t = t
         ease = k.get("ease", "in_out")
         if ease not in _EASE:
@@ -188,6 +196,9 @@ def parse_script(text: str, origin: str = "<script>") -> Script:
     duration = _num(doc.get("duration", keys[-1].t), f"{origin}: duration")
     if duration < keys[-1].t:
         raise ScriptError(f"{origin}: duration {duration} is before the last key")
+    if duration > MAX_DURATION_S:
+        raise ScriptError(f"{origin}: duration {duration} s is longer than the longest script allowed "
+                          f"({MAX_DURATION_S:g} s = 1 hour)")
     body = doc.get("body", {})
     noise = doc.get("noise", {})
     if not isinstance(body, dict) or not isinstance(noise, dict):
@@ -239,6 +250,11 @@ def script_poses(script: Script, body: Body, fps: float | None = None,
         states_q.append(cur_q)
         states_r.append(np.array([cur_root[a] for a in _ROOT_KEYS]))
     times = np.array([k.t for k in script.keys])
+    if not (math.isfinite(rate) and 0 < rate <= 1000):
+        raise ScriptError(f"{script.name}: sampling rate must be in (0, 1000] fps, got {rate}")
+    if script.duration > MAX_DURATION_S:
+        raise ScriptError(f"{script.name}: duration {script.duration} s is longer than the longest script "
+                          f"allowed ({MAX_DURATION_S:g} s = 1 hour)")
     n = math.floor(script.duration * rate + 1e-9) + 1
     t = np.arange(n) / rate
     n_keys = len(times)

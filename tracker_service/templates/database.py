@@ -9,6 +9,7 @@ Loading checks all of it: a missing, truncated, corrupt or stale (older format) 
 from __future__ import annotations
 
 import json
+import tokenize
 import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -166,6 +167,69 @@ def save_db(path: str | Path, db: FilterDB, body: Body, camera: Camera, meta: di
     return p
 
 
+def _check_indices(p: Path, arrays: dict[str, NDArray[Any]], n_levels: int, hint: str) -> None:
+    """Every index array within the bounds of what it indexes (a tampered database whose checksums
+    were recomputed must not reach the filter's unchecked indexing)."""
+
+    def fail(name: str, what: str) -> None:
+        raise DatabaseError(f"{p / (name + '.npy')}: {what}; {hint}")
+
+    def in_range(name: str, lo: int, hi: int) -> None:
+        a = arrays[name]
+        if a.dtype.kind not in "iu":
+            fail(name, f"index array has dtype {a.dtype}, expected integers")
+        if a.size and (int(a.min()) < lo or int(a.max()) >= hi):
+            fail(name, f"indices out of range [{lo}, {hi}) (found {int(a.min())}..{int(a.max())})")
+
+    def csr(name: str, n_rows: int, n_items: int) -> None:
+        a = arrays[name]
+        if a.dtype.kind not in "iu":
+            fail(name, f"pointer array has dtype {a.dtype}, expected integers")
+        if a.ndim != 1 or len(a) != n_rows + 1:
+            fail(name, f"pointer array has shape {a.shape}, expected ({n_rows + 1},)")
+        if int(a[0]) != 0 or int(a[-1]) != n_items or (len(a) > 1 and bool(np.any(np.diff(a) < 0))):
+            fail(name, f"pointers must rise from 0 to {n_items}")
+
+    if n_levels < 1:
+        raise DatabaseError(f"inconsistent template database at {p} (n_levels = {n_levels}); {hint}")
+    sizes = [len(arrays[f"tree_node_template_{lvl}"]) for lvl in range(n_levels)]
+    n_templates = len(arrays["tree_template_leaf"])
+    n_leaves = sizes[-1]
+    for lvl in range(n_levels):
+        in_range(f"tree_node_template_{lvl}", 0, n_templates)
+        parent = f"tree_node_parent_{lvl}"
+        if len(arrays[parent]) != sizes[lvl]:
+            fail(parent, f"{len(arrays[parent])} entries for {sizes[lvl]} nodes")
+        if lvl == 0:
+            in_range(parent, -1, 0)
+        else:
+            in_range(parent, 0, sizes[lvl - 1])
+        ptr = f"tree_child_ptr_{lvl}"
+        if lvl < n_levels - 1:
+            csr(ptr, sizes[lvl], sizes[lvl + 1])
+        elif arrays[ptr].size:
+            fail(ptr, "the leaf level must have no child pointers")
+        csr(f"runs_ptr_{lvl}", sizes[lvl], len(arrays[f"runs_data_{lvl}"]))
+    in_range("tree_template_leaf", 0, n_leaves)
+    for name in ("leaf_poses", "leaf_visible", "leaf_heading", "nbr_idx", "nbr_dpart"):
+        if len(arrays[name]) != n_leaves:
+            fail(name, f"{len(arrays[name])} rows for {n_leaves} leaves")
+    anc = arrays["leaf_anc"]
+    if anc.shape != (n_levels, n_leaves):
+        fail("leaf_anc", f"shape {anc.shape}, expected ({n_levels}, {n_leaves})")
+    if anc.dtype.kind not in "iu":
+        fail("leaf_anc", f"index array has dtype {anc.dtype}, expected integers")
+    for lvl in range(n_levels):
+        row = anc[lvl]
+        if row.size and (int(row.min()) < 0 or int(row.max()) >= sizes[lvl]):
+            fail("leaf_anc", f"level {lvl} ancestors out of range [0, {sizes[lvl]})")
+    csr("trans_ptr", n_leaves, len(arrays["trans_idx"]))
+    in_range("trans_idx", 0, n_leaves)
+    if len(arrays["trans_p"]) != len(arrays["trans_idx"]):
+        fail("trans_p", f"{len(arrays['trans_p'])} entries for {len(arrays['trans_idx'])} transitions")
+    in_range("nbr_idx", 0, n_leaves)
+
+
 def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedDatabase:
     """Read and check a database folder.
 
@@ -202,7 +266,7 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
             f = p / f"{name}.npy"
             try:
                 a = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
-            except (OSError, ValueError, EOFError) as e:
+            except (OSError, ValueError, EOFError, SyntaxError, tokenize.TokenError) as e:
                 raise DatabaseError(f"cannot read {f} (truncated or corrupt: {e}); {hint}") from None
             if list(a.shape) != info["shape"] or a.dtype.str != info["dtype"]:
                 raise DatabaseError(f"{f} has shape {a.shape} {a.dtype.str}, manifest says {info['shape']} "
@@ -211,6 +275,7 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
                 raise DatabaseError(f"{f} is corrupt (checksum mismatch); {hint}")
             arrays[name] = np.asarray(a)  # plain ndarray view of the mapping: no np.memmap overhead per index
         n_levels = int(man["n_levels"])
+        _check_indices(p, arrays, n_levels, hint)
         tree = TemplateTree(
             node_template=[arrays[f"tree_node_template_{lvl}"] for lvl in range(n_levels)],
             node_parent=[arrays[f"tree_node_parent_{lvl}"] for lvl in range(n_levels)],

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tracker_service.app.host_probe import host_probe
+
 __all__ = ["ESTIMATOR_NAMES", "PLOTS", "TAKES", "BenchOptions", "host_probe", "main_options", "markdown_table",
            "run_bench", "write_outputs"]
 
@@ -84,18 +86,6 @@ class BenchOptions:
     repeats: int = 3
     joint: str = "r_elbow"
     plots: bool = True
-
-
-def host_probe(repeats: int = 3) -> float:
-    """Median seconds of a CPython loop of 10^7 integer additions (``bench/_host.py``'s probe)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        s = 0
-        for i in range(10_000_000):
-            s += i
-        times.append(time.perf_counter() - t0)
-    return round(sorted(times)[len(times) // 2], 3)
 
 
 def _clips(options: BenchOptions, body: Any, motions: list[Any]) -> list[tuple[str, Any]]:

@@ -1,4 +1,8 @@
-"""``python -m protocol``: inspect the live message stream.
+"""``python -m protocol``: inspect the live message stream, and fuzz a client.
+
+Subcommand ``fuzz`` publishes hostile payloads (:mod:`protocol.wire.fuzz`: malformed bytes and
+valid messages with absurd values) on a key at a steady rate, so that an integrator can check that
+their client survives them; it prints how many of each case it sent.
 
 Subcommand ``echo`` subscribes to the pose and status keys of one tracker (``--id ID``) or of all
 trackers (``--id '*'``, the default) and prints every decoded message, one per line (``--json``:
@@ -75,6 +79,20 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--json", action="store_true", help="one JSON object per message on stdout")
     ep.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors on stderr")
     add_zenoh_args(ep, "subscriber")
+    fp = sub.add_parser(
+        "fuzz", help="publish hostile payloads on a key, to check that a client survives them",
+        description="Publish malformed payloads and valid messages with absurd values (far-future times, "
+                    "the largest sequence numbers, spoofed frames, giant and tiny bodies, NaN, oversized "
+                    "arrays, deep nesting) on KEY. The message type follows the key's last segment "
+                    "(pose or body). A client under test should count and drop them all and keep running.",
+    )
+    fp.add_argument("--key", required=True, help="the key to publish on, e.g. mocap/tracker/cam0/pose")
+    fp.add_argument("--rate", type=_positive, default=100.0, metavar="HZ", help="payloads a second (default 100)")
+    fp.add_argument("--duration", type=_positive, default=10.0, metavar="S", help="seconds (default 10)")
+    fp.add_argument("--cases", default="", help="comma-separated cases (default: every case for the key's type)")
+    fp.add_argument("--seed", type=int, default=0, help="the payloads' random seed")
+    fp.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors on stderr")
+    add_zenoh_args(fp, "publisher")
     return parser
 
 
@@ -165,9 +183,65 @@ def run_echo(args: argparse.Namespace, stop: threading.Event) -> tuple[EchoCount
     return counts, args.count is None or counts.poses >= args.count
 
 
+def fuzz_template(key: str) -> Any:
+    """A valid message for ``key``'s leaf (``pose`` or ``body``) to build hostile ones from."""
+    from protocol.skeleton import N_JOINTS, N_PARTS, POSE_SIZE, body_from_measurements
+    from protocol.wire.messages import body_info_from_body
+
+    leaf = key.rstrip("/").rsplit("/", 1)[-1]
+    tid = key.split("/")[2] if key.startswith("mocap/tracker/") and key.count("/") >= 3 else "fuzz"
+    if leaf == "pose":
+        return PoseFrame(tracker_id=tid, seq=1, capture_ts=1.0, publish_ts=time.time(),
+                         pose=np.zeros(POSE_SIZE, np.float32), joints=np.zeros((N_JOINTS, 3), np.float32),
+                         visibility=np.ones(N_PARTS, np.float32), confidence=0.9, estimator="tree",
+                         body_model="mMA")
+    if leaf == "body":
+        return body_info_from_body(body_from_measurements(1.7), tid)
+    raise ValueError(f"fuzz: the key's last segment must be pose or body, got {leaf!r}")
+
+
+def run_fuzz(args: argparse.Namespace, stop: threading.Event) -> dict[str, int]:
+    """Publish until ``stop`` or ``--duration``; return the count of each case sent."""
+    from protocol.wire.fuzz import cases_for, hostile_stream
+
+    template = fuzz_template(args.key)
+    allowed = cases_for(template)
+    cases = tuple(c.strip() for c in args.cases.split(",") if c.strip())
+    if unknown := [c for c in cases if c not in allowed]:
+        raise ValueError(f"fuzz: unknown case(s) {', '.join(unknown)} for {args.key}; choose from {', '.join(allowed)}")
+    sent: dict[str, int] = {}
+    rng = np.random.default_rng(args.seed)
+    t0 = time.monotonic()
+    with open_session(config_from_args(args, role="publisher")) as session:
+        pub = session.declare_publisher(args.key)
+        try:
+            stream = hostile_stream(template, rng, cases, last_seq=1, clock=0.0)
+            k = 0
+            while not stop.is_set() and time.monotonic() - t0 < args.duration:
+                case, payload = next(stream)
+                pub.put(payload)
+                sent[case] = sent.get(case, 0) + 1
+                k += 1
+                stop.wait(max(0.0, t0 + k / args.rate - time.monotonic()))
+        finally:
+            undeclare_quietly(pub)
+    return sent
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``python -m protocol`` with ``argv`` and return the exit status."""
     args = build_parser().parse_args(argv)
+    if args.command == "fuzz":
+        logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="fuzz: %(message)s",
+                            stream=sys.stderr)
+        try:
+            with stop_on_signals(threading.Event()) as stop:
+                sent = run_fuzz(args, stop)
+        except (OSError, ValueError, ConnectionError) as exc:
+            print(f"{PROG} fuzz: {exc}", file=sys.stderr)
+            return 1
+        print(json.dumps({"key": args.key, "sent": sum(sent.values()), "cases": dict(sorted(sent.items()))}))
+        return 0
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="echo: %(message)s", stream=sys.stderr)
     try:

@@ -35,6 +35,7 @@ from tracker_service.scene.room import (
     shadow_strength_map,
 )
 from tracker_service.scene.subject import MATERIALS, ClothedSubject
+from tracker_service.scene.variation import SceneVariation, photo_room, vary_lighting
 
 __all__ = ["SHADOW_FLOOR", "SHADOW_WALL", "SceneRenderer"]
 
@@ -67,13 +68,25 @@ class SceneRenderer:
         The undisturbed camera (frames may shift its principal point).
     rng : np.random.Generator
         Draws the room, the lighting and the textures.
+    variation : SceneVariation, optional
+        Lights and backdrop varied (:mod:`tracker_service.scene.variation`), noise scaled.
+    vary : np.random.Generator, optional
+        Draws the variation's lights and backdrop (its own stream: the default draw stays the same).
     """
 
-    def __init__(self, subject: ClothedSubject, camera: Camera, rng: np.random.Generator) -> None:
+    def __init__(self, subject: ClothedSubject, camera: Camera, rng: np.random.Generator,
+                 variation: SceneVariation | None = None, vary: np.random.Generator | None = None) -> None:
         self.subject = subject
         self.camera = camera
         self.lighting = random_lighting(rng)
         self.room = build_room(rng)
+        self.noise_scale = 1.0
+        if variation is not None and variation.axes:
+            vary = vary if vary is not None else np.random.default_rng()
+            self.lighting = vary_lighting(self.lighting, variation.lights, vary)
+            if "backdrop" in variation.axes:
+                self.room = photo_room(self.room, vary)
+            self.noise_scale = variation.noise_scale
         self._renderer = deterministic_renderer(camera.width, camera.height)
         self.background, self.surface = render_background(self.room, self.lighting, camera, self._renderer)
         spec = subject.spec
@@ -237,7 +250,7 @@ class SceneRenderer:
             var += np.float32((1.2 / 255.0) ** 2)
             off = int(rng.integers(_NOISE_PAD))
             noise = self._noise_bank[off:off + out.size].reshape(out.shape)
-            out += np.sqrt(var, out=var) * noise
+            out += np.sqrt(var, out=var) * (noise if self.noise_scale == 1.0 else noise * np.float32(self.noise_scale))
         u8 = np.clip(out * 255.0 + 0.5, 0, 255).astype(np.uint8)
         return np.ascontiguousarray(u8[..., ::-1])
 

@@ -30,7 +30,8 @@ _P = {p: k for k, p in enumerate(PARTS)}
 
 @dataclass(frozen=True)
 class SubjectSpec:
-    """Body measurements and wardrobe of the scene's person (metres, RGB 0-255)."""
+    """Body measurements and wardrobe of the scene's person (metres, RGB 0-255); ``stoop``: extra
+    forward flexion of the spine and the neck in every frame (radians; an elderly person's)."""
 
     group: Group
     height: float
@@ -50,6 +51,7 @@ class SubjectSpec:
     lower: tuple[int, int, int]
     lower_pattern: str
     shoes: tuple[int, int, int]
+    stoop: float = 0.0
 
 
 def _rgb(rng: np.random.Generator, lo: tuple[float, float, float],

@@ -31,14 +31,15 @@ from numpy.typing import NDArray
 from protocol.formats.load import load_motion
 from protocol.motion import Motion, ground, resample
 from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
-from protocol.skeleton import N_JOINTS, N_PARTS, POSE_SIZE
+from protocol.skeleton import JOINT_INDEX, N_JOINTS, N_PARTS, POSE_SIZE, ROT_SLOT
 from tracker_service.body.raster import render_labels_with_areas
 from tracker_service.camera import Camera, default_camera
 from tracker_service.scene.gl import labels_from_seg
 from tracker_service.scene.render import SceneRenderer
-from tracker_service.scene.subject import ClothedSubject, build_subject, random_subject_spec
+from tracker_service.scene.subject import ClothedSubject, SubjectSpec, build_subject, random_subject_spec
+from tracker_service.scene.variation import SceneVariation, degrade_frame, vary_subject
 
-__all__ = ["GroundTruth", "SceneConfig", "SceneFrame", "SyntheticScene", "place_motion"]
+__all__ = ["GroundTruth", "SceneConfig", "SceneFrame", "SyntheticScene", "place_motion", "scene_subject", "stooped"]
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +66,9 @@ class SceneConfig:
         Turn the motion about the vertical so the person faces the camera in its first frame.
     in_place : bool
         Remove the root's horizontal travel (walks stay on the spot) instead of only centring it.
+    variation : tuple of str
+        Domain-randomisation axes (:data:`tracker_service.scene.variation.AXES`); empty: the
+        default draw.
     """
 
     width: int = 320
@@ -76,6 +80,7 @@ class SceneConfig:
     noise: bool = True
     face_camera: bool = True
     in_place: bool = False
+    variation: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -157,6 +162,30 @@ def place_motion(poses: NDArray[np.float64], *, face_camera: bool = True,
     return p
 
 
+def scene_subject(seed: int, axes: tuple[str, ...] = (),
+                  rng: np.random.Generator | None = None) -> tuple[SubjectSpec, SceneVariation]:
+    """The person that ``seed`` draws, varied along ``axes``, and the scene-wide variation.
+
+    ``rng``: the scene's generator (``default_rng([seed, 0])``), advanced past the person's draw;
+    the variation has a stream of its own."""
+    spec = random_subject_spec(rng if rng is not None else np.random.default_rng([int(seed), 0]))
+    if not axes:
+        return spec, SceneVariation()
+    vary = np.random.default_rng([int(seed), 3, 0])
+    return vary_subject(spec, axes, vary), SceneVariation.draw(axes, vary)
+
+
+def stooped(poses: NDArray[np.float64], angle: float) -> NDArray[np.float64]:
+    """``poses`` with the spine and the neck flexed forward by ``angle`` (radians) in all, as an
+    elderly person stoops (half at the chest, a quarter each at the spine and the neck)."""
+    out = np.array(poses, np.float64, copy=True)
+    for joint, share in (("spine", 0.25), ("chest", 0.5), ("neck", 0.25)):
+        sl = slice(3 + 3 * ROT_SLOT[JOINT_INDEX[joint]], 6 + 3 * ROT_SLOT[JOINT_INDEX[joint]])
+        bend = rotvec_to_matrix(np.array([share * angle, 0.0, 0.0]))
+        out[:, sl] = matrix_to_rotvec(rotvec_to_matrix(out[:, sl]) @ bend)
+    return out
+
+
 class SyntheticScene:
     """A synthetic video of a clothed person performing ``motion``.
 
@@ -178,14 +207,18 @@ class SyntheticScene:
         self.config = cfg = config or SceneConfig()
         self.seed = int(seed)
         rng = np.random.default_rng([self.seed, 0])
-        self.subject: ClothedSubject = build_subject(random_subject_spec(rng))
+        spec, self.variation = scene_subject(self.seed, cfg.variation, rng)
+        self.subject: ClothedSubject = build_subject(spec)
         m = resample(motion, cfg.fps) if cfg.fps else motion
         placed = place_motion(m.poses, face_camera=cfg.face_camera, in_place=cfg.in_place)
+        if spec.stoop > 0:
+            placed = stooped(placed, spec.stoop)
         self.poses = ground(placed, self.subject.body)
         self.fps = float(m.fps)
         self.motion_name = m.name
         self.camera = default_camera(cfg.width, cfg.height, dist=cfg.distortion)
-        self._renderer = SceneRenderer(self.subject, self.camera, rng)
+        self._renderer = SceneRenderer(self.subject, self.camera, rng, self.variation,
+                                       np.random.default_rng([self.seed, 3, 1]))
         self._jitter = rng.uniform(0.0, 2 * np.pi, 4), rng.uniform(0.2, 0.6, 2)
         self._expo = rng.uniform(0.0, 2 * np.pi, 3), rng.uniform(0.05, 0.25), rng.uniform(7.0, 13.0)
         log.info("synthetic scene seed %d: %s person %.2f m, %d frames at %.1f fps", self.seed,
@@ -195,7 +228,7 @@ class SyntheticScene:
     def from_file(cls, path: str | Path, seed: int = 0, config: SceneConfig | None = None) -> SyntheticScene:
         """Load a ``.bvh`` recording or ``.toml`` gesture script, retargeted onto the person that
         ``seed`` chooses, and build the scene for it."""
-        body = build_subject(random_subject_spec(np.random.default_rng([int(seed), 0]))).body
+        body = build_subject(scene_subject(int(seed), (config or SceneConfig()).variation)[0]).body
         return cls(load_motion(path, body=body), seed, config)
 
     def __enter__(self) -> SyntheticScene:
@@ -251,13 +284,16 @@ class SyntheticScene:
         labels = labels_from_seg(seg)
         labels = np.where(labels < N_PARTS, labels, -1).astype(np.int8)  # drop shadow codes
         image, labels = self._renderer.distort(image, labels)
+        if self.variation.blur_px > 0 or self.variation.codec != "none":
+            image = degrade_frame(image, self.variation, np.random.default_rng([self.seed, 4, i]))
         truth = self._truth(i, k, cam, labels, joints)
         return SceneFrame(i / self.fps, image, truth)
 
     def _exposure(self, i: int, rng: np.random.Generator) -> NDArray[np.float32]:
         ph, slow, flick = self._expo
         t = i / self.fps
-        g = 1.0 + 0.03 * np.sin(2 * np.pi * slow * t + ph[0]) + 0.008 * np.sin(2 * np.pi * flick * t + ph[1])
+        swing = self.variation.exposure_swing
+        g = 1.0 + swing * np.sin(2 * np.pi * slow * t + ph[0]) + 0.008 * np.sin(2 * np.pi * flick * t + ph[1])
         g += 0.004 * rng.standard_normal()
         wb = 1.0 + 0.01 * np.sin(2 * np.pi * 0.5 * slow * t + ph[2] + np.array([0.0, 2.1, 4.2]))
         return (g * wb).astype(np.float32)

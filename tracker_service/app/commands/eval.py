@@ -44,6 +44,9 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     ep.add_argument("--jpeg-quality", type=int, metavar="Q",
                     help="pass every frame through JPEG at quality Q (1-100) first, as a webcam's MJPEG does "
                          "(default: lossless)")
+    ep.add_argument("--vary", metavar="AXES", default="",
+                    help="domain randomisation of the scene: comma-separated axes of body, clothing, appearance, "
+                         "backdrop, lights, sensor, compression, or all (default: none)")
     ep.add_argument("--json", action="store_true", help="print only the JSON object (progress stays on stderr)")
     add_video_arg(ep)
     return ep
@@ -53,10 +56,16 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     tracker = tracker_options(args, subject=True)
     if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:
         raise UsageError("--jpeg-quality must be in 1..100")
+    from tracker_service.scene.variation import parse_axes
+
+    try:
+        variation = parse_axes(args.vary)
+    except ValueError as e:
+        raise UsageError(f"--vary: {e}") from None
     return EvalCommandOptions(motion=args.bvh or args.script, tracker=tracker, json=args.json,
                               evaluation=EvalOptions(frames=args.frames, seed=args.seed,
                                                      force_loss_every_s=args.force_loss_every,
-                                                     jpeg_quality=args.jpeg_quality),
+                                                     jpeg_quality=args.jpeg_quality, variation=variation),
                               progress=not args.quiet, video=args.video)
 
 

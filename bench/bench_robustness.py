@@ -1,0 +1,99 @@
+"""The robustness matrix: the tracker from pixels on held-out takes, one row per domain-randomisation
+axis of the synthetic scene (:mod:`tracker_service.scene.variation`), several subjects per row.
+
+Usage::
+
+    .venv/bin/python bench/bench_robustness.py [--axes default,body,...] [--seeds 1,5,9]
+        [--takes N] [--frames N] [--jobs J] [--out DIR]
+
+Every cell is ``mocap-tracker eval --json --vary AXIS`` (a subprocess, as a user runs it; ``--jobs``
+at a time). Row ``default`` is the scene without variation: the same takes and seeds, so each row's
+cost is its difference from that one. Writes ``robustness.md`` (the table) and ``robustness.json``
+(every run) to ``--out`` (default ``out/bench_robustness``). Not a test: it takes minutes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import platform
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from _host import host_probe  # bench/ is the script's folder
+from tqdm import tqdm
+
+from protocol.formats.mocap_data import index_entries, mocap_root
+from tracker_service.build.database import is_held_out
+from tracker_service.scene.variation import AXES
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _eval(bvh: Path, seed: int, axis: str, frames: int) -> dict[str, Any]:
+    cmd = [sys.executable, "-m", "tracker_service", "eval", "-q", "--json", "--bvh", str(bvh), "--seed", str(seed),
+           "--frames", str(frames), "--vary", "" if axis == "default" else axis]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
+    if r.returncode != 0:
+        return {"error": r.stderr.strip().splitlines()[-1:] or [f"exit {r.returncode}"]}
+    return dict(json.loads(r.stdout.strip().splitlines()[-1]))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--axes", default="default," + ",".join(AXES), help="rows (default: default and every axis)")
+    ap.add_argument("--seeds", default="1,5,9", help="scene seeds: the subjects of every row")
+    ap.add_argument("--takes", type=int, default=3, help="held-out takes spread over the list")
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", default=str(ROOT / "out" / "bench_robustness"))
+    args = ap.parse_args()
+    rows = [a.strip() for a in args.axes.split(",") if a.strip()]
+    if unknown := [a for a in rows if a != "default" and a not in AXES]:
+        raise SystemExit(f"unknown axis {unknown}; choose from default, {', '.join(AXES)}")
+    seeds = [int(s) for s in args.seeds.split(",")]
+    held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
+    pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
+    root = mocap_root()
+    cells = list(itertools.product(rows, pick, seeds))
+    t0 = time.time()
+    with ThreadPoolExecutor(args.jobs) as ex:
+        runs = list(tqdm(ex.map(lambda c: _eval(root / c[1].path, c[2], c[0], args.frames), cells),
+                         total=len(cells), desc="robustness", unit="run"))
+    records = [{"axis": a, "take": e.path, "seed": s, **r} for (a, e, s), r in zip(cells, runs, strict=True)]
+    lines = ["| axis | runs | MPJPE cm (mean) | worst run cm | frames within 10 cm | stature error cm | what varied |",
+             "|---|---|---|---|---|---|---|"]
+    summary: dict[str, Any] = {}
+    for a in rows:
+        ok = [r for r in records if r["axis"] == a and r.get("mpjpe_cm") is not None]
+        if not ok:
+            lines.append(f"| {a} | 0 | - | - | - | - | failed |")
+            continue
+        mp = np.array([r["mpjpe_cm"] for r in ok])
+        w10 = np.array([r["frames_within_10cm"] for r in ok])
+        st = np.array([abs(r["body_height_m"] - r["subject_height_m"]) * 100 for r in ok])
+        what = sorted({f"{r['subject']['group']}" for r in ok} | {r["scene"]["lights"] for r in ok} |
+                      {f"{r['scene']['codec']}" for r in ok} - {"none", "default"})
+        summary[a] = {"runs": len(ok), "mpjpe_cm": round(float(mp.mean()), 2), "worst_cm": round(float(mp.max()), 2),
+                      "within_10cm": round(float(w10.mean()), 3), "stature_error_cm": round(float(st.mean()), 1)}
+        lines.append(f"| {a} | {len(ok)} | {mp.mean():.2f} | {mp.max():.2f} | {w10.mean():.3f} | {st.mean():.1f} | "
+                     f"{', '.join(what)} |")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"command": "bench/bench_robustness.py " + " ".join(sys.argv[1:]), "date": time.strftime("%Y-%m-%d"),
+            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "host": host_probe(),
+            "seeds": seeds, "takes": [e.path for e in pick], "frames": args.frames, "wall_s": round(time.time() - t0)}
+    (out / "robustness.json").write_text(json.dumps({"meta": meta, "rows": summary, "runs": records}, indent=1))
+    (out / "robustness.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

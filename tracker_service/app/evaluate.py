@@ -214,7 +214,8 @@ class _ForcedLosses:
 def _scene(motion: Motion, loaded: LoadedDatabase, options: EvalOptions) -> SyntheticScene:
     travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
     scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=options.fps,
-                       empty_prefix=options.empty_prefix, in_place=bool(travel > options.in_place_travel_m))
+                       empty_prefix=options.empty_prefix, in_place=bool(travel > options.in_place_travel_m),
+                       variation=options.variation)
     return SyntheticScene(motion, seed=options.seed, config=scfg)
 
 
@@ -329,7 +330,15 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "body_selected": state.body.name,
         "database_body": loaded.body.name,
         "subject_height_m": round(float(scene.subject.spec.height), 3),
+        "body_height_m": round(float(state.body.height), 3),
+        "stature_measured_m": round(float(np.median(state.statures)), 3) if state.statures else None,
         "reinitialisations": int(state.reinits),
         "poses_sha256": tally.digest.hexdigest(),
         "jpeg_quality": options.jpeg_quality,
+        "variation": list(options.variation),
+        "subject": {"group": scene.subject.spec.group, "chest_m": round(float(scene.subject.spec.chest), 3),
+                    "stoop_deg": round(float(np.degrees(scene.subject.spec.stoop)), 1)},
+        "scene": {"lights": scene.variation.lights, "codec": scene.variation.codec,
+                  "quality": scene.variation.quality, "blur_px": round(scene.variation.blur_px, 1),
+                  "noise_scale": round(scene.variation.noise_scale, 2)},
     }

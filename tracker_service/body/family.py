@@ -44,6 +44,7 @@ __all__ = [
     "estimate_weight",
     "markdown_table",
     "model_body_info",
+    "resized_model_body",
     "select_body_model",
 ]
 
@@ -276,6 +277,30 @@ def body_model(name: str) -> BodyModel:
         return _BY_NAME[name]
     except KeyError:
         raise KeyError(f"unknown body model {name!r}; known: {', '.join(_BY_NAME)}") from None
+
+
+def resized_model_body(model: BodyModel | str, height_m: float) -> Body:
+    """The model's body at another stature, its proportions kept (girths scaled with the height).
+
+    Parameters
+    ----------
+    model : BodyModel or str
+    height_m : float
+        Standing height, metres (0.8-2.3).
+
+    Returns
+    -------
+    Body
+        Named after the model; ``measurements["height_m"]`` is ``height_m``.
+    """
+    m = body_model(model) if isinstance(model, str) else model
+    if not (np.isfinite(height_m) and 0.8 <= height_m <= 2.3):
+        raise ValueError(f"stature {height_m} m outside 0.8-2.3 m")
+    k = height_m / m.body.height
+    g = m.body.measurements
+    sw = float(g["shoulder_width_m"]) / m.body.height
+    return build_body(m.name, m.group, height_m, k * float(g["chest_m"]), k * float(g["waist_m"]),
+                      k * float(g["hip_m"]), shoulder_frac=sw)
 
 
 def select_body_model(height_m: float, chest_m: float | None = None, weight_kg: float | None = None, *,

@@ -20,14 +20,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body
-from tracker_service.body.family import body_model
+from tracker_service.body.family import body_model, resized_model_body
 from tracker_service.camera import Camera
 from tracker_service.estimators.base import Observation
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.silhouette.features import LevelFeatures
 from tracker_service.silhouette.placement import scaled_placement
 
-__all__ = ["BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
+__all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
+
+#: Statures a measured body may have (metres): a child of about five to a very tall adult.
+STATURE_RANGE_M = (1.05, 2.05)
 
 _HEAD_TOP = JOINT_INDEX["head_top"]
 _HAND_TIPS = np.array([JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]])
@@ -154,10 +157,16 @@ class BodyChoice:
 
     @staticmethod
     def from_scores(scores: dict[str, list[float]], db_body: Body, stature: float = float("nan"),
-                    tolerance_m: float = 0.06) -> BodyChoice:
+                    tolerance_m: float = 0.06, sized: bool = True) -> BodyChoice:
         """Lowest mean distance wins among the candidates whose height is within ``tolerance_m`` of
         the measured ``stature`` (those at the nearest height when none is; all candidates when the
-        stature is unknown); no scores keeps the database's body."""
+        stature is unknown); no scores keeps the database's body.
+
+        The winner gives the build (group, girths and proportions over height); with ``sized`` and
+        a measured stature the body is that model at the measured stature
+        (:func:`~tracker_service.body.family.resized_model_body`, within :data:`STATURE_RANGE_M`),
+        so the published skeleton is as tall as the person measures, not as the nearest model of
+        the family (whose steps are 4-5 cm)."""
         if not scores:
             return BodyChoice(db_body, 1.0, float("nan"))
         names = list(scores)
@@ -168,4 +177,6 @@ class BodyChoice:
             names = [n for n in names if gap[n] <= max(tolerance_m, min(gap.values()) + 1e-6)]
         name = min(names, key=lambda n: float(np.mean(scores[n])))
         body = body_model(name).body
+        if sized and np.isfinite(stature):
+            body = resized_model_body(name, float(np.clip(stature, *STATURE_RANGE_M)))
         return BodyChoice(body, body.height / db_body.height, float(np.mean(scores[name])))

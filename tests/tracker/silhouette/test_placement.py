@@ -10,7 +10,7 @@ from tracker_service.body.family import body_model
 from tracker_service.body.raster import render_silhouette, silhouette_runs
 from tracker_service.camera import default_camera
 from tracker_service.cues.appearance import camera_joints
-from tracker_service.pipeline.body_selection import BodyChoice, measured_stature
+from tracker_service.pipeline.body_selection import STATURE_RANGE_M, BodyChoice, measured_stature
 from tracker_service.silhouette.distance import RunSet, mask_to_runs, runs_to_mask
 from tracker_service.silhouette.placement import (
     feet_in_view,
@@ -174,6 +174,21 @@ def test_body_choice_keeps_a_man_taller_than_the_family_at_its_tallest() -> None
     assert choice.body.name == "mLY"
     assert choice.scale == pytest.approx(1.75 / db_body.height)
     assert BodyChoice.from_scores({}, db_body, 1.87).body is db_body
+
+
+def test_body_choice_is_as_tall_as_the_measured_stature() -> None:
+    """The winner gives the build; the body is that model at the measured stature (the family's
+    steps are 4-5 cm), its proportions kept; out of range it is clamped."""
+    db_body = body_model("mMA").body
+    scores = {"mTA": [0.30], "mLY": [0.25], "mLA": [0.28]}
+    choice = BodyChoice.from_scores(scores, db_body, 1.77)
+    assert choice.body.name == "mLY" and choice.body.height == pytest.approx(1.77)
+    assert choice.scale == pytest.approx(1.77 / db_body.height)
+    ly = body_model("mLY").body
+    assert np.allclose(choice.body.offsets / 1.77, ly.offsets / ly.height, atol=5e-4)
+    assert np.allclose(choice.body.capsule_radii / 1.77, ly.capsule_radii / ly.height, atol=1e-3)
+    assert BodyChoice.from_scores(scores, db_body, 1.77, sized=False).body is ly
+    assert BodyChoice.from_scores(scores, db_body, 2.6).body.height == pytest.approx(STATURE_RANGE_M[1])
 
 
 def test_template_bottoms_at_every_level(small_db) -> None:  # type: ignore[no-untyped-def]

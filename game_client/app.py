@@ -152,6 +152,8 @@ def _write(fh: IO[str] | None, record: dict[str, Any]) -> None:
 
 
 
+#: How long a query for the tracker's ``BodyInfo`` waits (at the start, after a new stream).
+_BODY_QUERY_S = 0.3
 _COUNTERS = ("decode_errors", "bad_frames", "tracker_restarts", "dropped_frames", "publish_errors", "invalid_body",
              "invalid_pose")
 
@@ -194,6 +196,7 @@ class GameClient:
         self.last_seq: int | None = None
         self.next_state = 0.0
         self.over_at: float | None = None
+        self.want_body = True  # ask the tracker's queryable for its BodyInfo (at start, after a new stream)
 
     def _count(self, key: str, n: int = 1) -> None:
         self.c[key] = clamp_count(self.c.get(key, 0) + n)
@@ -235,6 +238,7 @@ class GameClient:
             return False
         if verdict.restart:
             self._count("tracker_restarts")
+            self.want_body = True  # the new stream may track another player: ask for the body
             log.warning("new tracker stream (seq %d, t=%.3f s); the round continues", frame.seq, frame.capture_ts)
             self.rnd.restart_stream()
         elif self.last_seq is not None and frame.seq > self.last_seq + 1:
@@ -350,6 +354,12 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
                 body_sample = body_sub.try_recv()
                 if body_sample is not None:
                     client.on_body(bytes(body_sample.payload.to_bytes()))
+                    client.want_body = False
+                elif client.want_body and tid != "*":  # once at the start and once per new stream
+                    client.want_body = False
+                    for reply in session.get(body_key(tid), timeout=_BODY_QUERY_S):
+                        if reply.ok is not None:
+                            client.on_body(bytes(reply.ok.payload.to_bytes()))
                 sample = pose_sub.try_recv()
                 if sample is None:
                     stop.wait(options.poll_s)

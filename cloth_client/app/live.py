@@ -224,6 +224,7 @@ class ClothClient:
         self.sim_t: float | None = None  # the solver's clock (not the stream's)
         self.last_ts = 0.0
         self.over_budget = 0
+        self.want_body = True  # ask the tracker's queryable for its BodyInfo (at start, after a new stream)
 
     def _count(self, key: str, n: int = 1) -> None:
         self.result.counters[key] = self.result.counters.get(key, 0) + n
@@ -296,6 +297,7 @@ class ClothClient:
         ts = float(frame.capture_ts)
         if verdict.restart:
             self._count("tracker_restarts")
+            self.want_body = True  # the new stream may track another body: ask for it
             log.warning("new tracker stream (seq %d, t=%.3f s): the cloth follows it", frame.seq, ts)
         if self.sim_t is None:
             self.sim_t = 0.0
@@ -357,6 +359,12 @@ class ClothClient:
             self.outputs = None
 
 
+def _same_body(a: BodyInfo, b: BodyInfo) -> bool:
+    """Whether two ``BodyInfo`` describe the same skeleton (a re-queried body changes nothing)."""
+    return (a.body_model == b.body_model and np.array_equal(a.offsets, b.offsets)
+            and np.array_equal(a.capsule_radii, b.capsule_radii))
+
+
 def _query_body(session: zenoh.Session, key: str, client: ClothClient) -> BodyInfo | None:
     for reply in session.get(key, timeout=0.5):
         if reply.ok is not None:
@@ -412,11 +420,14 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
                 new_info = None
                 while (s := body_sub.try_recv()) is not None:
                     new_info = client.decode_body(_payload(s)) or new_info
-                if new_info is None and client.driver is None and now - last_query >= _BODY_RETRY_S:
+                ask = client.driver is None or client.want_body
+                if new_info is None and ask and now - last_query >= _BODY_RETRY_S:
                     last_query = now
+                    client.want_body = False  # once per new stream; without a body, every second
                     new_info = _query_body(session, body_key(opts.tracker_id), client)
                 if new_info is not None:
-                    client.set_body(new_info)
+                    if client.info is None or not _same_body(client.info, new_info):
+                        client.set_body(new_info)
                 payloads = []
                 while (s := pose_sub.try_recv()) is not None:
                     payloads.append(_payload(s))

@@ -128,7 +128,9 @@ def test_huge_rotation_never_reaches_the_solver() -> None:
 def test_tracker_restart_followed_within_two_seconds() -> None:
     client, made = _client()
     client.on_body(encode(INFO))
+    client.want_body = False  # the app's query at the start answered
     now = _stream(client, 900)  # 30 s, then the tracker restarts: seq and time from 0 again
+    assert not client.want_body
     d = made[0]
     n_before = len(d.fed)
     restart_at = now + 0.5
@@ -139,6 +141,7 @@ def test_tracker_restart_followed_within_two_seconds() -> None:
             resumed = k / FPS
     assert resumed is not None and resumed <= 2.0
     assert client.result.counters["tracker_restarts"] == 1
+    assert client.want_body  # the app asks for the new stream's body
     times = _solver_times(d)
     assert np.all(np.diff(times) > 0)
     assert np.diff(times).max() <= 1.01 * d.config.continuity.max_gap_s + 1e-3 + 1e-9

@@ -106,7 +106,10 @@ def test_hostile_frames_do_not_suppress_real_gestures(kind: str) -> None:
 
 def test_tracker_restart_followed_within_two_seconds() -> None:
     client, out = _client()
+    assert client.want_body  # the app asks the tracker's queryable at the start
+    client.want_body = False
     now = _play(client, _frames("transform"), 0.0)  # a few seconds of stream; then the tracker restarts
+    assert not client.want_body
     restart_now = now + 0.5
     second = _frames("fire_ring")  # seq and time from 0 again
     fresh, out_fresh = _client()
@@ -119,6 +122,7 @@ def test_tracker_restart_followed_within_two_seconds() -> None:
             accepted_at = k / FPS
     assert accepted_at is not None and accepted_at <= 2.0
     assert client.c["tracker_restarts"] == 1
+    assert client.want_body  # ... and again for the new stream
     assert out.gestures() == ["transform", "fire_ring"]
     # recognised on the same stream frame as on a fresh client (no extra delay)
     assert [e.stream_ts for e in out.events if e.kind == GameEventKind.GESTURE][-1] == pytest.approx(

@@ -32,7 +32,7 @@ from protocol.wire.codec import encode
 from protocol.wire.keys import alive_key, body_key, pose_key, status_key, validate_id
 from protocol.wire.messages import PoseFrame, TrackerState, TrackerStatus, body_info_from_body
 from tracker_service.app.options import RunCommandOptions, RunOptions
-from tracker_service.app.replay_daemon import wait_for_subscriber
+from tracker_service.app.replay_daemon import has_subscriber, wait_for_subscriber
 from tracker_service.pipeline.process import FrameResult, TrackerConfig, new_state, process_frame
 from tracker_service.pipeline.warmup import warm_up
 from tracker_service.sources.frame_source import FrameSource
@@ -92,6 +92,7 @@ class _Run:
         self.counters = _Counters()
         self.state = new_state(loaded.body)
         self.body_bytes = encode(body_info_from_body(self.state.body, tid))
+        self.body_matched = False  # whether a subscriber matched the body publisher at the last frame
         self.t_start = time.monotonic()
         self.seq = 0
 
@@ -127,10 +128,15 @@ class _Run:
             values["reinitialisations"] += 1
         if res.rejected is not None:  # a pose without grounds: withheld
             values["withheld"] = values.get("withheld", 0) + 1
+        matched = has_subscriber(body_pub)
         if res.body_changed:
             values["body_changes"] += 1
             self.body_bytes = encode(body_info_from_body(self.state.body, self.tid))
             body_pub.put(self.body_bytes)
+        elif matched and not self.body_matched:  # a first subscriber appeared: it gets the body now
+            values["body_republished"] = values.get("body_republished", 0) + 1
+            body_pub.put(self.body_bytes)
+        self.body_matched = matched
         if res.pose is not None:
             try:
                 frame_msg = _pose_frame(self.tid, self.seq, ts, res, self.state.body.name, self.config.estimator)

@@ -123,7 +123,8 @@ class _Status:
         )
 
 
-def _has_subscriber(pub: zenoh.Publisher) -> bool:
+def has_subscriber(pub: zenoh.Publisher) -> bool:
+    """Whether a subscriber matches ``pub`` now."""
     # eclipse-zenoh 1.10's stub says ``matching_status -> bool`` but it returns a MatchingStatus
     # object, which is always truthy; the answer is its ``.matching``.
     status: Any = pub.matching_status
@@ -134,10 +135,10 @@ def wait_for_subscriber(pub: zenoh.Publisher, seconds: float, stop: threading.Ev
     """Wait up to ``seconds`` for a subscriber matching ``pub``; True if one is there."""
     deadline = time.monotonic() + seconds
     while not stop.is_set() and time.monotonic() < deadline:
-        if _has_subscriber(pub):
+        if has_subscriber(pub):
             return True
         stop.wait(0.01)
-    return _has_subscriber(pub)
+    return has_subscriber(pub)
 
 
 def publish_motion(

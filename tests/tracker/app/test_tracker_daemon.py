@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -41,6 +42,8 @@ def test_daemon_publishes_sane_poses(small_db, weak_appearance_net) -> None:  # 
     poses: list[PoseFrame] = []
     statuses: list[TrackerStatus] = []
     body: BodyInfo | None = None
+    pushed: BodyInfo | None = None  # put by the tracker when a body subscriber appears late
+    bsub: Any = None
     conf = build_config(mode="peer", connect=[ep], listen=[free_tcp_endpoint()])
     try:
         with zenoh.open(conf) as session:
@@ -59,11 +62,17 @@ def test_daemon_publishes_sane_poses(small_db, weak_appearance_net) -> None:  # 
                         for reply in session.get(body_key("e2e"), timeout=2.0):
                             if reply.ok is not None:
                                 body = decode(reply.ok.payload.to_bytes(), BodyInfo)
+                    if bsub is None and len(poses) > 15:
+                        bsub = session.declare_subscriber(body_key("e2e"))
+                    if bsub is not None and pushed is None and (b := bsub.try_recv()) is not None:
+                        pushed = decode(b.payload.to_bytes(), BodyInfo)
                     if s is None and t is None:
                         time.sleep(0.005)
             finally:
                 sub.undeclare()
                 ssub.undeclare()
+                if bsub is not None:
+                    bsub.undeclare()
         proc.wait(timeout=30)
     finally:
         if proc.poll() is None:
@@ -82,6 +91,7 @@ def test_daemon_publishes_sane_poses(small_db, weak_appearance_net) -> None:  # 
         assert 1.0 < j[JOINT_INDEX["head_top"], 1] < 2.2
         assert p.estimator == "tree" and 0 <= p.confidence <= 1
     assert body is not None and body.body_model == "mMA"
+    assert pushed is not None and pushed.body_model == "mMA"
     assert statuses and statuses[-1].state.value in ("tracking", "stopped")
 
 

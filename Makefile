@@ -9,7 +9,12 @@ TEST_STAMP := $(VENV)/.installed-test
 # Debian packages a later stage needs (offscreen GL for pyrender via EGL/Mesa, ffmpeg-free video via OpenCV).
 APT_PACKAGES := libegl1 libgl1 libgles2 libegl-mesa0 libgl1-mesa-dri
 
-.PHONY: demo test lint bench clean-venv apt
+# MediaPipe Pose, the peer the benchmarks compare with, in its own environment: its last wheel that
+# bundles the pose models needs numpy<2, opencv-python-headless<4.12 and protobuf<5.
+PEERS := .venv-peers
+PEERS_STAMP := $(PEERS)/.installed
+
+.PHONY: demo test lint bench bench-peers clean-venv apt
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -44,5 +49,13 @@ lint: $(TEST_STAMP)
 bench: $(TEST_STAMP) apt
 	$(BIN)/python bench/run_all.py
 
+$(PEERS_STAMP):
+	@test -x $(PEERS)/bin/python || $(PY) -m venv $(PEERS)
+	$(PEERS)/bin/python -m pip install -q "mediapipe==0.10.21" "numpy<2" "opencv-python-headless<4.12" "protobuf<5"
+	@touch $(PEERS_STAMP)
+
+bench-peers: $(TEST_STAMP) $(PEERS_STAMP) apt
+	$(BIN)/python bench/bench_peers.py $(PEERS_ARGS)
+
 clean-venv:
-	rm -rf $(VENV)
+	rm -rf $(VENV) $(PEERS)

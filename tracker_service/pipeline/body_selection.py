@@ -31,6 +31,8 @@ __all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "measured_stature
 
 #: Statures a measured body may have (metres): a child of about five to a very tall adult.
 STATURE_RANGE_M = (1.05, 2.05)
+#: A body is resized at most this far beyond the heights of the models scored for it (metres).
+SIZE_MARGIN_M = 0.10
 
 _HEAD_TOP = JOINT_INDEX["head_top"]
 _HAND_TIPS = np.array([JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]])
@@ -164,7 +166,8 @@ class BodyChoice:
 
         The winner gives the build (group, girths and proportions over height); with ``sized`` and
         a measured stature the body is that model at the measured stature
-        (:func:`~tracker_service.body.family.resized_model_body`, within :data:`STATURE_RANGE_M`),
+        (:func:`~tracker_service.body.family.resized_model_body`, within :data:`STATURE_RANGE_M` and
+        :data:`SIZE_MARGIN_M` of the scored models' heights),
         so the published skeleton is as tall as the person measures, not as the nearest model of
         the family (whose steps are 4-5 cm)."""
         if not scores:
@@ -178,5 +181,10 @@ class BodyChoice:
         name = min(names, key=lambda n: float(np.mean(scores[n])))
         body = body_model(name).body
         if sized and np.isfinite(stature):
-            body = resized_model_body(name, float(np.clip(stature, *STATURE_RANGE_M)))
+            # a broken silhouette (clothes the colour of the wall) can measure anything: the size
+            # stays within SIZE_MARGIN_M of the scored models' heights
+            hs = [body_model(n).body.height for n in scores]
+            lo = max(STATURE_RANGE_M[0], min(hs) - SIZE_MARGIN_M)
+            hi = min(STATURE_RANGE_M[1], max(hs) + SIZE_MARGIN_M)
+            body = resized_model_body(name, float(np.clip(stature, lo, hi)))
         return BodyChoice(body, body.height / db_body.height, float(np.mean(scores[name])))

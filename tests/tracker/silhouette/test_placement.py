@@ -10,7 +10,7 @@ from tracker_service.body.family import body_model
 from tracker_service.body.raster import render_silhouette, silhouette_runs
 from tracker_service.camera import default_camera
 from tracker_service.cues.appearance import camera_joints
-from tracker_service.pipeline.body_selection import STATURE_RANGE_M, BodyChoice, measured_stature
+from tracker_service.pipeline.body_selection import SIZE_MARGIN_M, STATURE_RANGE_M, BodyChoice, measured_stature
 from tracker_service.silhouette.distance import RunSet, mask_to_runs, runs_to_mask
 from tracker_service.silhouette.placement import (
     feet_in_view,
@@ -188,7 +188,9 @@ def test_body_choice_is_as_tall_as_the_measured_stature() -> None:
     assert np.allclose(choice.body.offsets / 1.77, ly.offsets / ly.height, atol=5e-4)
     assert np.allclose(choice.body.capsule_radii / 1.77, ly.capsule_radii / ly.height, atol=1e-3)
     assert BodyChoice.from_scores(scores, db_body, 1.77, sized=False).body is ly
-    assert BodyChoice.from_scores(scores, db_body, 2.6).body.height == pytest.approx(STATURE_RANGE_M[1])
+    # a measurement far beyond the scored models (a broken silhouette) is held near them
+    assert BodyChoice.from_scores(scores, db_body, 2.6).body.height == pytest.approx(1.80 + SIZE_MARGIN_M)
+    assert BodyChoice.from_scores({"cPA": [0.2]}, db_body, 0.5).body.height == pytest.approx(STATURE_RANGE_M[0])
 
 
 def test_template_bottoms_at_every_level(small_db) -> None:  # type: ignore[no-untyped-def]

@@ -158,9 +158,13 @@ def main() -> int:
     with threadpool_limits(1):  # the tracker on one core, as mocap-tracker runs it
         warm_up(loaded.db, loaded.body, loaded.camera, cfg)
         todo = [(a, e, s) for a in rows for e in pick for s in seeds]
-        for a, e, s in tqdm(todo, desc="peers", unit="run"):
-            cells.append(run_cell(loaded, cfg, mocap_root() / e.path, s, a, args.frames,
-                                  out / f"{a}_{Path(e.path).stem}_{s}", args.complexity))
+        out.mkdir(parents=True, exist_ok=True)
+        with (out / "peers_runs.jsonl").open("w") as log:  # every run as it ends (a crash keeps them)
+            for a, e, s in tqdm(todo, desc="peers", unit="run"):
+                cells.append(run_cell(loaded, cfg, mocap_root() / e.path, s, a, args.frames,
+                                      out / f"{a}_{Path(e.path).stem}_{s}", args.complexity))
+                log.write(json.dumps(cells[-1]) + "\n")
+                log.flush()
     lines = ["| row | runs | ours MPJPE cm | MediaPipe MPJPE cm | ours PA-MPJPE cm | MediaPipe PA-MPJPE cm | "
              "runs ours lower (MPJPE) | found ours / MediaPipe | ms ours / MediaPipe |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -174,7 +178,7 @@ def main() -> int:
         def m(key: str, cs: list[dict[str, Any]] = c) -> float:
             return float(np.mean([x[key] for x in cs]))
         wins = sum(x["mpjpe_ours"] < x["mpjpe_mediapipe"] for x in c)
-        ms_ours = float(np.mean([x["ms_ours"]["mean"] for x in c if x["ms_ours"]]))
+        ms_ours = float(np.nanmean([x["ms_ours"]["avg"] for x in c]))
         summary[a] = {k: round(m(k), 2) for k in ("mpjpe_ours", "mpjpe_mediapipe", "pa_mpjpe_ours",
                                                    "pa_mpjpe_mediapipe", "found_ours", "found_mediapipe",
                                                    "ms_mediapipe")} | {"ours_lower": f"{wins}/{len(c)}",

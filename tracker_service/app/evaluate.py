@@ -133,6 +133,7 @@ class _Tally:
     present: int = 0
     tracked: int = 0
     errs: list[float] = field(default_factory=list)  # root-relative mean joint error of each tracked frame
+    confs: list[float] = field(default_factory=list)  # the published confidence of each tracked frame
     err_t: list[float] = field(default_factory=list)  # their timestamps
     root_errs: list[float] = field(default_factory=list)
     errs2d: list[float] = field(default_factory=list)
@@ -156,6 +157,7 @@ class _Tally:
         self.digest.update(np.ascontiguousarray(je, dtype=np.float64).tobytes())
         e = float(np.linalg.norm((je - je[0]) - (jt - jt[0]), axis=1).mean())
         self.errs.append(e)
+        self.confs.append(float(res.confidence))
         steady = was_tracking and res.phase == "tracking"  # initialisation (body selection) apart
         if steady and not in_loss and not res.reinitialised and not res.body_changed:
             # jitter of steady tracking: no loss, recovery or new skeleton
@@ -230,6 +232,18 @@ def _eval_config(config: TrackerConfig, options: EvalOptions, scene: SyntheticSc
         given = {k: known[k] for k in ("height", *options.subject_measurements)}
         cfg = replace(cfg, body_candidates=(), body=given_body(given))
     return cfg
+
+
+def confidence_error_spearman(confidence: list[float], error: list[float]) -> float | None:
+    """Spearman's rank correlation between the published confidence and the frame's error (a
+    confidence that means something correlates negatively); None for fewer than 10 frames or a
+    constant series."""
+    c, e = np.asarray(confidence, np.float64), np.asarray(error, np.float64)
+    if len(c) < 10 or np.ptp(c) == 0 or np.ptp(e) == 0:
+        return None
+    from scipy.stats import spearmanr
+
+    return round(float(spearmanr(c, e).statistic), 3)
 
 
 def jpeg_roundtrip(image: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
@@ -313,6 +327,7 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "mpjpe_2d_px": round(float(np.mean(tally.errs2d)), 2) if tally.errs2d else None,
         "frames_within_10cm": round(float(np.mean(e_arr < 0.10)), 3) if len(e_arr) else 0.0,
         "accel_error_cm": round(accel * 100, 3) if np.isfinite(accel) else None,
+        "confidence_error_spearman": confidence_error_spearman(tally.confs, tally.errs),
         "reacquire_s_max": (None if not reacq else (round(max(reacq), 3) if np.isfinite(max(reacq)) else None)),
         "forced_losses": len(reacq),
         "reacquired": int(np.sum(np.isfinite(reacq))),

@@ -13,6 +13,7 @@ noise, so only brightness counts there.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -21,7 +22,8 @@ from numpy.typing import NDArray
 
 from tracker_service.silhouette._kernels import foreground_kernel
 
-__all__ = ["BackgroundModel", "BackgroundParams", "clean_mask", "clean_mask_reference", "learn_background",
+__all__ = ["NOISY_BRIGHT_STD", "BackgroundModel", "BackgroundParams", "clean_mask", "clean_mask_reference",
+           "learn_background", "smoothed", "smoothing_for",
            "raw_foreground", "raw_foreground_reference",
            "subtract", "update_background"]
 
@@ -52,6 +54,10 @@ class BackgroundParams:
         The largest component must cover at least this fraction of the image, else empty mask.
     open_px, close_px : int
         Morphological opening / closing kernel sizes (pixels at the working resolution).
+    part_frac, part_reach : float
+        Other components kept as parts of the person: at least ``part_frac`` of the largest's area,
+        within ``part_reach`` of its height above or below its box (a third of that sideways);
+        ``part_frac`` 1: the largest component alone.
     """
 
     chroma_threshold: float = 6.0
@@ -62,6 +68,8 @@ class BackgroundParams:
     min_area_frac: float = 0.002
     open_px: int = 3
     close_px: int = 5
+    part_frac: float = 0.01
+    part_reach: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,9 @@ class BackgroundModel:
         Standard deviation of the brightness.
     n_frames : int
         Frames the model was learned from.
+    smooth_sigma : float
+        Gaussian smoothing (pixels) applied to every frame before it is compared with the model,
+        and to the frames it was learned from; 0 for a quiet camera (:func:`smoothing_for`).
     """
 
     chroma_mean: NDArray[np.float32]
@@ -87,6 +98,7 @@ class BackgroundModel:
     bright_mean: NDArray[np.float32]
     bright_std: NDArray[np.float32]
     n_frames: int
+    smooth_sigma: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -98,6 +110,40 @@ def _chroma_bright(frame: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArr
     s = f.sum(axis=-1)
     chroma = f[..., 1:3] / np.maximum(s, _EPS)[..., None]  # BGR: (G, R) / sum
     return chroma, s / 3.0
+
+
+#: A camera whose median per-pixel brightness noise (0-255) over the learning frames is above this
+#: is noisy: its frames are smoothed before subtraction (the synthetic scene's own camera: 2.0).
+NOISY_BRIGHT_STD = 2.6
+
+
+def smoothing_for(bright_std: NDArray[np.floating]) -> float:
+    """The pre-smoothing (Gaussian sigma, pixels) for a camera with this per-pixel brightness noise
+    ``(H, W)``: 0 up to :data:`NOISY_BRIGHT_STD`, then growing with the noise (1 px at 3x the
+    scene's noise, at most 1.5 px). Averaging n pixels divides the noise by about sqrt(n); the
+    person's limbs (3-8 px wide at 320x240) survive a sigma of 1.5."""
+    noise = float(np.median(bright_std))
+    if noise <= NOISY_BRIGHT_STD:
+        return 0.0
+    return float(np.clip(0.4 * noise - 0.2, 0.7, 1.5))
+
+
+def smoothed(frame: NDArray[np.uint8], sigma: float) -> NDArray[np.uint8]:
+    """``frame`` (..., H, W, 3) uint8 smoothed by a Gaussian of ``sigma`` pixels (0: unchanged)."""
+    if sigma <= 0:
+        return frame
+    if frame.ndim == 4:
+        return np.stack([smoothed(f, sigma) for f in frame])
+    return np.asarray(cv2.GaussianBlur(frame, (0, 0), sigma), np.uint8)
+
+
+def _learned(frames: NDArray[np.uint8], learn: Callable[[NDArray[np.uint8]], BackgroundModel]) -> BackgroundModel:
+    """``learn(frames)``, and for a noisy camera again on smoothed frames (``smooth_sigma`` set)."""
+    model = learn(frames)
+    sigma = smoothing_for(model.bright_std)
+    if sigma <= 0:
+        return model
+    return replace(learn(smoothed(frames, sigma)), smooth_sigma=sigma)
 
 
 def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
@@ -118,9 +164,13 @@ def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
     f = np.asarray(frames)
     if f.ndim != 4 or f.shape[-1] != 3 or f.shape[0] < 2:
         raise ValueError(f"need (N >= 2, H, W, 3) frames, got {f.shape}")
-    c, b = _chroma_bright(f)
-    return _model(c.mean(axis=0), c.std(axis=0), b.mean(axis=0), b.std(axis=0), int(f.shape[0]), chroma_std_floor,
-                  bright_std_floor)
+
+    def learn(g: NDArray[np.uint8]) -> BackgroundModel:
+        c, b = _chroma_bright(g)
+        return _model(c.mean(axis=0), c.std(axis=0), b.mean(axis=0), b.std(axis=0), int(g.shape[0]),
+                      chroma_std_floor, bright_std_floor)
+
+    return _learned(f, learn)
 
 
 def _model(c_mean: NDArray[np.floating], c_std: NDArray[np.floating], b_mean: NDArray[np.floating],
@@ -159,10 +209,15 @@ def learn_background_robust(frames: NDArray[np.uint8], chroma_std_floor: float =
     f = np.asarray(frames)
     if f.ndim != 4 or f.shape[-1] != 3 or f.shape[0] < 3:
         raise ValueError(f"need (N >= 3, H, W, 3) frames, got {f.shape}")
-    c, b = _chroma_bright(f)
-    c_med, b_med = np.median(c, axis=0), np.median(b, axis=0)
-    c_mad, b_mad = np.median(np.abs(c - c_med), axis=0), np.median(np.abs(b - b_med), axis=0)
-    return _model(c_med, 1.4826 * c_mad, b_med, 1.4826 * b_mad, int(f.shape[0]), chroma_std_floor, bright_std_floor)
+
+    def learn(g: NDArray[np.uint8]) -> BackgroundModel:
+        c, b = _chroma_bright(g)
+        c_med, b_med = np.median(c, axis=0), np.median(b, axis=0)
+        c_mad, b_mad = np.median(np.abs(c - c_med), axis=0), np.median(np.abs(b - b_med), axis=0)
+        return _model(c_med, 1.4826 * c_mad, b_med, 1.4826 * b_mad, int(g.shape[0]), chroma_std_floor,
+                      bright_std_floor)
+
+    return _learned(f, learn)
 
 
 def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
@@ -183,6 +238,7 @@ def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
         raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
     out = np.empty(model.shape, bool)
     f32 = np.float32
+    frame = smoothed(frame, model.smooth_sigma)
     foreground_kernel(np.ascontiguousarray(frame, np.uint8), np.ascontiguousarray(model.chroma_mean, f32),
                       np.ascontiguousarray(model.chroma_inv_var, f32), np.ascontiguousarray(model.bright_mean, f32),
                       np.ascontiguousarray(model.bright_std, f32), params.chroma_threshold, params.shadow_ratio,
@@ -206,7 +262,7 @@ def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
     """
     if frame.shape[:2] != model.shape or frame.ndim != 3:
         raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
-    c, b = _chroma_bright(frame)
+    c, b = _chroma_bright(smoothed(frame, model.smooth_sigma))
     d = c - model.chroma_mean
     maha = np.sqrt((d * d * model.chroma_inv_var).sum(axis=-1))
     ratio = b / np.maximum(model.bright_mean, 1.0)
@@ -268,21 +324,40 @@ def _ellipse(size: int) -> NDArray[np.uint8]:
 
 
 def _largest_filled(m: NDArray[np.uint8], params: BackgroundParams, image_size: int) -> NDArray[np.bool_] | None:
-    """Closing, the largest 8-connected component and its holes filled, of the opened ``m``
-    ``(h, w) uint8``; None if that component is under ``min_area_frac`` of ``image_size`` pixels."""
+    """Closing, the largest 8-connected component with the parts that belong to it, and holes
+    filled, of the opened ``m`` ``(h, w) uint8``; None if the largest component is under
+    ``min_area_frac`` of ``image_size`` pixels.
+
+    A person whose shirt or hair matches the wall behind falls apart into pieces (legs below a
+    missing waist, a head above a missing neck): a component of at least ``part_frac`` of the
+    largest's area whose box touches the largest's box grown by ``part_reach`` of its height
+    (sideways a third of that) is a part of the same person and kept."""
     if params.close_px > 1:
         m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_CLOSE, _ellipse(params.close_px)), dtype=np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1:
         return None
-    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    k = 1 + int(np.argmax(areas))
     if stats[k, cv2.CC_STAT_AREA] < params.min_area_frac * image_size:
         return None
+    keep = labels == k
+    if params.part_frac < 1.0 and n > 2:
+        x, y, w, h = (int(v) for v in stats[k, :4])
+        reach = params.part_reach * h
+        x0, x1 = x - reach / 3, x + w + reach / 3
+        y0, y1 = y - reach, y + h + reach
+        for j in range(1, n):
+            if j == k or stats[j, cv2.CC_STAT_AREA] < params.part_frac * stats[k, cv2.CC_STAT_AREA]:
+                continue
+            xj, yj, wj, hj = (int(v) for v in stats[j, :4])
+            if xj < x1 and xj + wj > x0 and yj < y1 and yj + hj > y0:
+                keep |= labels == j
     # fill holes: background regions not 4-connected to the border (flood the background from a
     # one-pixel frame around the image; what the flood does not reach is inside the body)
-    h, w = m.shape
-    outside = np.zeros((h + 2, w + 2), np.uint8)
-    outside[1:-1, 1:-1] = labels == k
+    hh, ww = m.shape
+    outside = np.zeros((hh + 2, ww + 2), np.uint8)
+    outside[1:-1, 1:-1] = keep
     cv2.floodFill(outside, None, (0, 0), 2, flags=4)
     filled: NDArray[np.bool_] = outside[1:-1, 1:-1] != 2
     return filled
@@ -325,7 +400,7 @@ def update_background(model: BackgroundModel, frame: NDArray[np.uint8], foregrou
     """
     if not 0 < rate < 1:
         raise ValueError("rate must be in (0, 1)")
-    c, b = _chroma_bright(frame)
+    c, b = _chroma_bright(smoothed(frame, model.smooth_sigma))
     w = np.where(foreground, 0.0, rate).astype(np.float32)
     cm = model.chroma_mean + w[..., None] * (c - model.chroma_mean)
     c_var = 1.0 / model.chroma_inv_var

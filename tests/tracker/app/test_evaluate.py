@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from tracker_service.app.evaluate import acceleration_error, reacquisition_times
+from tracker_service.app.evaluate import acceleration_error, confidence_error_spearman, reacquisition_times
 
 FPS = 30.0
 
@@ -69,3 +69,12 @@ def test_jpeg_roundtrip_degrades_like_mjpeg() -> None:
     assert hi.shape == img.shape and hi.dtype == np.uint8
     err = [np.abs(x.astype(int) - img).mean() for x in (hi, lo)]
     assert 0 < err[0] < err[1]
+
+
+def test_confidence_error_correlation() -> None:
+    rng = np.random.default_rng(0)
+    err = rng.uniform(0.02, 0.2, 50)
+    assert confidence_error_spearman(list(1 - err), list(err)) == pytest.approx(-1.0)
+    assert abs(confidence_error_spearman(list(rng.random(50)), list(err)) or 0.0) < 0.4
+    assert confidence_error_spearman([0.5] * 50, list(err)) is None  # a constant confidence says nothing
+    assert confidence_error_spearman([0.1, 0.2], [0.3, 0.1]) is None  # too few frames

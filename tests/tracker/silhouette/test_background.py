@@ -159,3 +159,45 @@ def test_the_robust_model_learns_the_room_behind_a_moving_person(rng: np.random.
     seen_robust = subtract(robust, shot(36))[person].mean()
     seen_plain = subtract(plain, shot(36))[person].mean()
     assert seen_robust > 0.95 and seen_plain < 0.7  # (measured: 0.99 and 0.55)
+
+
+def test_the_parts_of_a_person_split_by_a_wall_coloured_shirt_are_kept() -> None:
+    """Legs under a missing waist and a head over a missing neck are parts of the person; a speck
+    and a piece far to the side are not."""
+    m = np.zeros((120, 160), bool)
+    m[20:60, 70:90] = True  # torso and arms (the largest piece)
+    m[70:110, 72:88] = True  # legs under a missing waist
+    m[8:17, 76:84] = True  # the head over a missing neck
+    m[50:53, 150:153] = True  # a speck
+    m[30:60, 0:12] = True  # something large far to the side
+    out = clean_mask(m, BackgroundParams(open_px=1, close_px=1))
+    assert out[90, 80] and out[12, 80] and out[40, 80]
+    assert not out[51, 151] and not out[40, 5]
+    alone = clean_mask(m, BackgroundParams(open_px=1, close_px=1, part_frac=1.0))
+    assert alone[40, 80] and not alone[90, 80] and not alone[12, 80]
+    assert np.array_equal(out, clean_mask_reference(m, BackgroundParams(open_px=1, close_px=1)))
+
+
+def test_a_noisy_camera_is_smoothed_before_subtraction(rng: np.random.Generator) -> None:
+    base = _room(rng)
+    quiet = learn_background(_frames(rng, base, 10))
+    assert quiet.smooth_sigma == 0.0
+    noisy_frames = np.clip(base[None] + rng.normal(0, 12.0, (10, *base.shape)), 0, 255).astype(np.uint8)
+    noisy = learn_background(noisy_frames)
+    assert 0.7 <= noisy.smooth_sigma <= 1.5
+    truth = _person_mask()
+    frame = base.copy()
+    frame[truth] = base[truth] * 0.55 + 40  # a person whose clothes are close to the room's colours
+    frame = np.clip(frame + rng.normal(0, 12.0, frame.shape), 0, 255).astype(np.uint8)
+    with_smoothing = subtract(noisy, frame)
+    without = subtract(_unsmoothed(noisy_frames), frame)
+    assert _iou(with_smoothing, truth) > _iou(without, truth) + 0.05
+    assert np.array_equal(raw_foreground(noisy, frame), raw_foreground_reference(noisy, frame))
+
+
+def _unsmoothed(frames: np.ndarray):  # type: ignore[no-untyped-def]
+    """The model of ``frames`` as it was before noise-adaptive smoothing."""
+    from tracker_service.silhouette.background import _chroma_bright, _model
+
+    c, b = _chroma_bright(frames)
+    return _model(c.mean(axis=0), c.std(axis=0), b.mean(axis=0), b.std(axis=0), len(frames), 0.004, 2.0)

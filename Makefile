@@ -8,6 +8,8 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 # Debian packages a later stage needs (offscreen GL for pyrender via EGL/Mesa, ffmpeg-free video via OpenCV).
 APT_PACKAGES := libegl1 libgl1 libgles2 libegl-mesa0 libgl1-mesa-dri
+# the viewer's page is tested in a real browser (Debian's headless Chromium); only make test needs it
+TEST_APT_PACKAGES := chromium chromium-driver
 
 # MediaPipe Pose, the peer the benchmarks compare with, in its own environment: its last wheel that
 # bundles the pose models needs numpy<2, opencv-python-headless<4.12 and protobuf<5.
@@ -27,7 +29,7 @@ $(TEST_STAMP): $(STAMP) pyproject.toml
 	@touch $(TEST_STAMP)
 
 apt:
-	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	@missing=""; for p in $(APT_PACKAGES) $(EXTRA_APT); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing Debian packages:$$missing"; \
 	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
@@ -38,6 +40,7 @@ demo: $(STAMP) apt
 	$(BIN)/python -m tracker_service demo
 
 # pytest exits 5 when it collects no test: report it plainly instead of failing with make's code 2.
+test: EXTRA_APT = $(TEST_APT_PACKAGES)
 test: $(TEST_STAMP) apt
 	@$(BIN)/python -m pytest -q $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest: no tests were collected"; exit 0; fi; exit $$rc

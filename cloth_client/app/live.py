@@ -7,12 +7,10 @@ asks for the ``BodyInfo`` with a ``get`` until one arrives, then drives a
 newest pose (the driver interpolates across the gap like a dropped frame). Optionally it renders
 frames (PNG directory and/or video) and publishes the cloth vertices on ``mocap/cloth/<id>/mesh``.
 
-Mesh message (msgpack map)
---------------------------
-``type`` ``"cloth_mesh"``, ``schema_version`` 1, ``cloth_id``, ``seq`` (0, 1, ...), ``ts`` (Unix
-time), ``capture_ts`` (the pose's stream time), ``garment``, ``n_vertices``, ``vertices`` (bytes:
-little-endian float32, ``n_vertices x 3``, metres, Y up) and, in the first message and every
-:data:`TOPOLOGY_EVERY`-th, ``triangles`` (bytes: little-endian uint32, ``T x 3``).
+Mesh message
+------------
+:class:`protocol.wire.media.ClothMesh` (layout there); the first message and every
+:data:`TOPOLOGY_EVERY`-th carry the triangles.
 
 Input checks and bounds
 -----------------------
@@ -48,7 +46,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-import msgpack
 import numpy as np
 import zenoh
 
@@ -59,6 +56,7 @@ from cloth_client.solver.garment import DEFAULT_PARTICLES, Garment, make_garment
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.keys import body_key, cloth_mesh_key, pose_key
+from protocol.wire.media import ClothMesh, encode_cloth_mesh
 from protocol.wire.messages import BodyInfo, PoseFrame
 from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame
 
@@ -122,15 +120,10 @@ class LiveResult:
 
 def mesh_message(cloth_id: str, seq: int, capture_ts: float, garment: Garment, x: np.ndarray,
                  with_topology: bool) -> bytes:
-    """Encode one cloth mesh message (layout in the module docstring)."""
-    msg: dict[str, Any] = {
-        "type": "cloth_mesh", "schema_version": 1, "cloth_id": cloth_id, "seq": int(seq), "ts": time.time(),
-        "capture_ts": float(capture_ts), "garment": garment.kind, "n_vertices": len(x),
-        "vertices": np.ascontiguousarray(x, dtype="<f4").tobytes(),
-    }
-    if with_topology:
-        msg["triangles"] = np.ascontiguousarray(garment.triangles, dtype="<u4").tobytes()
-    return bytes(msgpack.packb(msg, use_bin_type=True))
+    """Encode one cloth mesh message (:mod:`protocol.wire.media`)."""
+    return encode_cloth_mesh(ClothMesh(cloth_id, int(seq), time.time(), float(capture_ts), garment.kind,
+                                       np.asarray(x, np.float32),
+                                       np.asarray(garment.triangles, np.uint32) if with_topology else None))
 
 
 class _Outputs:

@@ -8,6 +8,7 @@ Layout
     mocap/tracker/<id>/body     BodyInfo, on start and on every ``get``     (publisher + queryable)
     mocap/tracker/<id>/status   TrackerStatus, about once per second        (publisher)
     mocap/tracker/<id>/alive    liveliness token while the tracker runs
+    mocap/tracker/<id>/preview  PreviewFrame (JPEG of the overlay) while a viewer subscribes
     mocap/game/<id>/event       game events                                 (game client)
     mocap/game/<id>/state       game state                                  (game client)
     mocap/cloth/<id>/mesh       cloth mesh                                  (cloth client)
@@ -41,6 +42,7 @@ __all__ = [
     "game_event_key",
     "game_state_key",
     "pose_key",
+    "preview_key",
     "split_key",
     "status_key",
     "validate_id",
@@ -56,7 +58,7 @@ DEFAULT_TRACKER_ID: Final[str] = "default"
 ANY: Final[str] = "*"
 
 _ID_RE: Final[re.Pattern[str]] = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
-_TRACKER_LEAVES: Final[frozenset[str]] = frozenset({"pose", "body", "status", "alive"})
+_TRACKER_LEAVES: Final[frozenset[str]] = frozenset({"pose", "body", "status", "alive", "preview"})
 _GAME_LEAVES: Final[frozenset[str]] = frozenset({"event", "state"})
 _CLOTH_LEAVES: Final[frozenset[str]] = frozenset({"mesh"})
 _DOMAINS: Final[dict[str, frozenset[str]]] = {
@@ -124,6 +126,12 @@ def alive_key(tracker_id: str) -> str:
     return _key("tracker", tracker_id, "alive")
 
 
+def preview_key(tracker_id: str) -> str:
+    """``mocap/tracker/<id>/preview``: :class:`~protocol.wire.media.PreviewFrame` (the camera frame
+    with the overlay, JPEG), published only while somebody subscribes."""
+    return _key("tracker", tracker_id, "preview")
+
+
 def game_event_key(game_id: str) -> str:
     """``mocap/game/<id>/event``: events emitted by a game client."""
     return _key("game", game_id, "event")
@@ -160,7 +168,8 @@ class KeyParts:
     id : str
         The tracker / game / cloth id.
     leaf : str
-        ``"pose"``, ``"body"``, ``"status"``, ``"alive"``, ``"event"``, ``"state"`` or ``"mesh"``.
+        ``"pose"``, ``"body"``, ``"status"``, ``"alive"``, ``"preview"``, ``"event"``, ``"state"`` or
+        ``"mesh"``.
     """
 
     domain: str

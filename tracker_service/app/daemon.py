@@ -7,6 +7,9 @@ On one zenoh session it declares, for tracker id ``<id>``:
   put when it changes and answered to every ``get`` (queryable);
 * ``mocap/tracker/<id>/status``: a :class:`~protocol.wire.messages.TrackerStatus` about once per second
   (state, fps, per-stage milliseconds, error counters) and a final one with state ``stopped``;
+* ``mocap/tracker/<id>/preview``: while somebody subscribes (``mocap-view``), the camera frame with
+  the silhouette and skeleton drawn on it, as JPEG, at most :data:`PREVIEW_HZ` a second
+  (:class:`~protocol.wire.media.PreviewFrame`);
 * a liveliness token ``mocap/tracker/<id>/alive`` while running.
 
 A frame the pipeline cannot use (wrong size, decoding error) is skipped, logged and counted; the
@@ -24,12 +27,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 import zenoh
 
 from protocol.net.session import open_session, undeclare_quietly
-from protocol.wire.codec import encode
+from protocol.wire.codec import ProtocolError, encode
 from protocol.wire.keys import alive_key, body_key, pose_key, status_key, validate_id
+from protocol.wire.media import PreviewFrame, encode_preview, preview_key
 from protocol.wire.messages import PoseFrame, TrackerState, TrackerStatus, body_info_from_body
 from tracker_service.app.options import RunCommandOptions, RunOptions
 from tracker_service.app.replay_daemon import has_subscriber, wait_for_subscriber
@@ -37,6 +42,7 @@ from tracker_service.pipeline.process import FrameResult, TrackerConfig, new_sta
 from tracker_service.pipeline.warmup import warm_up
 from tracker_service.sources.frame_source import FrameSource
 from tracker_service.templates.database import LoadedDatabase
+from tracker_service.viz.overlay import draw_overlay, hud_lines
 
 __all__ = ["FrameHook", "RunOptions", "run_from_options", "run_tracker"]
 
@@ -48,6 +54,11 @@ log = logging.getLogger(__name__)
 
 _STATE = {"learning": TrackerState.WAITING, "waiting": TrackerState.WAITING,
           "initialising": TrackerState.INITIALISING, "tracking": TrackerState.TRACKING}
+
+
+#: Preview frames (the camera frame with the overlay) a second at most, while a viewer watches.
+PREVIEW_HZ = 10.0
+PREVIEW_QUALITY = 80
 
 
 @dataclass
@@ -93,6 +104,7 @@ class _Run:
         self.state = new_state(loaded.body)
         self.body_bytes = encode(body_info_from_body(self.state.body, tid))
         self.body_matched = False  # whether a subscriber matched the body publisher at the last frame
+        self.last_preview = -np.inf
         self.t_start = time.monotonic()
         self.seq = 0
 
@@ -148,10 +160,32 @@ class _Run:
                 log.warning("publishing failed: %s", exc)
         return res
 
+    def preview(self, ts: float, frame: Any, res: FrameResult, pub: zenoh.Publisher) -> None:
+        """Put the frame with the overlay (JPEG, :class:`~protocol.wire.media.PreviewFrame`) when
+        somebody watches (a viewer subscribed) and ``1 / PREVIEW_HZ`` passed since the last one."""
+        now = time.monotonic()
+        if now - self.last_preview < 1.0 / PREVIEW_HZ or not has_subscriber(pub):
+            return
+        self.last_preview = now
+        image = draw_overlay(frame, self.loaded.camera, joints=res.joints, silhouette=res.silhouette,
+                             hud=hud_lines(str(res.phase), self.counters.fps(), res.confidence if res.joints is not None
+                                           else None))
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_QUALITY])
+        if not ok:
+            return
+        h, w = image.shape[:2]
+        try:
+            pub.put(encode_preview(PreviewFrame(self.tid, max(self.seq - 1, 0), float(ts), w, h, buf.tobytes())))
+            self.counters.values["previews"] = self.counters.values.get("previews", 0) + 1
+        except (zenoh.ZError, ProtocolError) as exc:
+            self.counters.values["publish_errors"] += 1
+            log.warning("preview not published: %s", exc)
+
     def track(self, source: FrameSource, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher,
-              status_pub: zenoh.Publisher, stop: threading.Event, observe: FrameHook | None = None) -> None:
+              status_pub: zenoh.Publisher, stop: threading.Event, observe: FrameHook | None = None,
+              preview_pub: zenoh.Publisher | None = None) -> None:
         """The frame loop: until the source ends, a limit or ``stop``; ``observe`` is called after
-        every frame."""
+        every frame; ``preview_pub`` gets the frame with the overlay while a viewer watches."""
         options = self.options
         t_run = time.monotonic()  # --duration counts from here
         body_pub.put(self.body_bytes)
@@ -166,6 +200,8 @@ class _Run:
                 observe(ts, frame, res)
             if res is None:
                 continue
+            if preview_pub is not None:
+                self.preview(ts, frame, res, preview_pub)
             now = time.monotonic()
             if now >= next_status:
                 status_pub.put(self.status(_STATE[res.phase]))
@@ -211,7 +247,8 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
             pose_pub = session.declare_publisher(pose_key(tid))
             body_pub = session.declare_publisher(body_key(tid))
             status_pub = session.declare_publisher(status_key(tid))
-            entities += [pose_pub, body_pub, status_pub]
+            preview_pub = session.declare_publisher(preview_key(tid))
+            entities += [pose_pub, body_pub, status_pub, preview_pub]
             entities.append(session.declare_queryable(body_key(tid), run.on_body_query))
             entities.append(session.liveliness().declare_token(alive_key(tid)))
             status_pub.put(run.status(TrackerState.STARTING))
@@ -219,7 +256,7 @@ def run_tracker(source: FrameSource, loaded: LoadedDatabase, config: TrackerConf
                      loaded.body.name, loaded.db.n_leaves)
             if options.wait_for_subscriber > 0 and not wait_for_subscriber(pose_pub, options.wait_for_subscriber, stop):
                 log.warning("no subscriber after %.1f s; tracking anyway", options.wait_for_subscriber)
-            run.track(source, pose_pub, body_pub, status_pub, stop, observe)
+            run.track(source, pose_pub, body_pub, status_pub, stop, observe, preview_pub)
             status_pub.put(run.status(TrackerState.STOPPED))
         finally:
             undeclare_quietly(*reversed(entities))

@@ -22,10 +22,20 @@ from numpy.typing import NDArray
 
 from tracker_service.silhouette._kernels import foreground_kernel
 
-__all__ = ["NOISY_BRIGHT_STD", "BackgroundModel", "BackgroundParams", "clean_mask", "clean_mask_reference",
-           "learn_background", "smoothed", "smoothing_for",
-           "raw_foreground", "raw_foreground_reference",
-           "subtract", "update_background"]
+__all__ = [
+    "NOISY_BRIGHT_STD",
+    "BackgroundModel",
+    "BackgroundParams",
+    "clean_mask",
+    "clean_mask_reference",
+    "learn_background",
+    "raw_foreground",
+    "raw_foreground_reference",
+    "smoothed",
+    "smoothing_for",
+    "subtract",
+    "update_background",
+]
 
 _EPS = 1e-6
 

@@ -10,11 +10,12 @@ Usage::
         [--frames N] [--complexity 0|1|2] [--out DIR]
 
 Scoring, per frame where both produced a pose: the 12 joints relative to the point between the hips
-(both methods' own), in the camera's axes (MediaPipe's world landmarks are camera-aligned; ours are
-turned into the camera's axes), mean distance to the truth (``mpjpe``); and the same after a
-similarity Procrustes alignment of each frame (``pa_mpjpe``: shape only, no rotation, scale or
-offset error). ``found`` is the fraction of frames where a method published a pose. Milliseconds
-are each method's own per-frame time on this machine (ours: the steady-tracking pipeline; MediaPipe:
+(both methods' own), in the camera's axes (MediaPipe's world landmarks are roughly camera-aligned;
+ours are turned into the camera's axes), mean distance to the truth (``mpjpe``); the same after
+the rotation that best aligns each frame (``r_mpjpe``: MediaPipe's world frame is often turned by
+tens of degrees, its hips sometimes nearly coincident; sizes still count); and after a similarity
+Procrustes alignment (``pa_mpjpe``: shape only, no rotation, scale or offset error). ``found`` is
+the fraction of frames where a method published a pose. Milliseconds are each method's own per-frame time on this machine (ours: the steady-tracking pipeline; MediaPipe:
 ``Pose.process``), measured in the same run.
 
 MediaPipe needs ``numpy<2``, ``opencv-python-headless<4.12`` and ``protobuf<5``: it runs in its own
@@ -63,15 +64,16 @@ OURS = np.array([JOINT_INDEX[n] for n in COMMON])
 HIPS = np.array([6, 7])  # l_hip, r_hip within COMMON
 
 
-def procrustes(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """``pred`` (N, 3) aligned to ``truth`` by the similarity transform of least squares."""
+def procrustes(pred: np.ndarray, truth: np.ndarray, with_scale: bool = True) -> np.ndarray:
+    """``pred`` (N, 3) aligned to ``truth`` by the similarity (or, without scale, the rigid)
+    transform of least squares."""
     mp, mt = pred.mean(0), truth.mean(0)
     p, t = pred - mp, truth - mt
     u, s, vt = np.linalg.svd(p.T @ t)
     d = np.sign(np.linalg.det(u @ vt))
     fix = np.diag([1.0, 1.0, d])
     r = u @ fix @ vt
-    scale = (s * np.diag(fix)).sum() / max((p ** 2).sum(), 1e-12)
+    scale = (s * np.diag(fix)).sum() / max((p ** 2).sum(), 1e-12) if with_scale else 1.0
     return scale * p @ r + mt
 
 
@@ -86,13 +88,14 @@ def score(truth: list[np.ndarray], ours: list[np.ndarray | None], peer: list[np.
                            "found_ours": round(sum(o is not None for o in ours) / max(len(truth), 1), 3),
                            "found_mediapipe": round(sum(p is not None for p in peer) / max(len(truth), 1), 3)}
     for name, preds in (("ours", ours), ("mediapipe", peer)):
-        e, pa = [], []
+        e, ra, pa = [], [], []
         for k in both:
             t, p = _hip_relative(truth[k]), _hip_relative(preds[k])  # type: ignore[arg-type]
             e.append(np.linalg.norm(p - t, axis=1).mean())
+            ra.append(np.linalg.norm(procrustes(p, t, with_scale=False) - t, axis=1).mean())
             pa.append(np.linalg.norm(procrustes(p, t) - t, axis=1).mean())
-        out[f"mpjpe_{name}"] = round(float(np.mean(e)) * 100, 2) if e else None
-        out[f"pa_mpjpe_{name}"] = round(float(np.mean(pa)) * 100, 2) if pa else None
+        for key, v in (("mpjpe", e), ("r_mpjpe", ra), ("pa_mpjpe", pa)):
+            out[f"{key}_{name}"] = round(float(np.mean(v)) * 100, 2) if v else None
     return out
 
 
@@ -165,26 +168,26 @@ def main() -> int:
                                       out / f"{a}_{Path(e.path).stem}_{s}", args.complexity))
                 log.write(json.dumps(cells[-1]) + "\n")
                 log.flush()
-    lines = ["| row | runs | ours MPJPE cm | MediaPipe MPJPE cm | ours PA-MPJPE cm | MediaPipe PA-MPJPE cm | "
-             "runs ours lower (MPJPE) | found ours / MediaPipe | ms ours / MediaPipe |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| row | runs | MPJPE cm ours / MediaPipe | rigidly aligned ours / MediaPipe | "
+             "PA-MPJPE ours / MediaPipe | runs ours lower (rigid) | found ours / MediaPipe | ms ours / MediaPipe |",
+             "|---|---|---|---|---|---|---|---|"]
     summary: dict[str, Any] = {}
     for a in rows:
         c = [x for x in cells if x["axis"] == a and x["mpjpe_ours"] is not None]
         if not c:
-            lines.append(f"| {a} | 0 | - | - | - | - | - | - | - |")
+            lines.append(f"| {a} | 0 | - | - | - | - | - | - |")
             continue
 
         def m(key: str, cs: list[dict[str, Any]] = c) -> float:
             return float(np.mean([x[key] for x in cs]))
-        wins = sum(x["mpjpe_ours"] < x["mpjpe_mediapipe"] for x in c)
+        wins = sum(x["r_mpjpe_ours"] < x["r_mpjpe_mediapipe"] for x in c)
         ms_ours = float(np.nanmean([x["ms_ours"]["avg"] for x in c]))
-        summary[a] = {k: round(m(k), 2) for k in ("mpjpe_ours", "mpjpe_mediapipe", "pa_mpjpe_ours",
-                                                   "pa_mpjpe_mediapipe", "found_ours", "found_mediapipe",
-                                                   "ms_mediapipe")} | {"ours_lower": f"{wins}/{len(c)}",
-                                                                       "ms_ours": round(ms_ours, 2)}
-        lines.append(f"| {a} | {len(c)} | {m('mpjpe_ours'):.2f} | {m('mpjpe_mediapipe'):.2f} | "
-                     f"{m('pa_mpjpe_ours'):.2f} | {m('pa_mpjpe_mediapipe'):.2f} | {wins}/{len(c)} | "
+        keys = [f"{e}_{w}" for e in ("mpjpe", "r_mpjpe", "pa_mpjpe") for w in ("ours", "mediapipe")]
+        summary[a] = {k: round(m(k), 2) for k in (*keys, "found_ours", "found_mediapipe", "ms_mediapipe")} | {
+            "ours_lower_rigid": f"{wins}/{len(c)}", "ms_ours": round(ms_ours, 2)}
+        lines.append(f"| {a} | {len(c)} | {m('mpjpe_ours'):.2f} / {m('mpjpe_mediapipe'):.2f} | "
+                     f"{m('r_mpjpe_ours'):.2f} / {m('r_mpjpe_mediapipe'):.2f} | "
+                     f"{m('pa_mpjpe_ours'):.2f} / {m('pa_mpjpe_mediapipe'):.2f} | {wins}/{len(c)} | "
                      f"{m('found_ours'):.2f} / {m('found_mediapipe'):.2f} | {ms_ours:.1f} / {m('ms_mediapipe'):.1f} |")
     meta = {"command": "bench/bench_peers.py " + " ".join(sys.argv[1:]), "date": time.strftime("%Y-%m-%d"),
             "machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "host": host_probe(),

@@ -88,8 +88,9 @@ class _Page:
                 pts, col = skeleton_segments(v.pose.joints)
                 self.server.scene.add_line_segments(f"/trackers/{sid}/skeleton", points=pts, colors=col,
                                                     line_width=5.0)
-                self.server.scene.add_point_cloud(f"/trackers/{sid}/joints", points=np.asarray(v.pose.joints, np.float32),
-                                                  colors=(255, 220, 90), point_size=0.03)
+                joints = np.asarray(v.pose.joints, np.float32)
+                self.server.scene.add_point_cloud(f"/trackers/{sid}/joints", points=joints, colors=(255, 220, 90),
+                                                  point_size=0.03)
             if v.preview is not None:
                 bgr = cv2.imdecode(np.frombuffer(v.preview.jpeg, np.uint8), cv2.IMREAD_COLOR)
                 if bgr is not None:

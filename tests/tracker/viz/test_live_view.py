@@ -108,7 +108,8 @@ def _page_shows(shot: Path) -> tuple[bool, str]:
     right = int(((r > 200) & (g < 110) & (b < 110)).sum())  # the right side's red bones
     left = int(((b > 200) & (r < 120) & (g > 90) & (g < 170)).sum())  # the left side's blue bones
     camera = int(((b > 170) & (g < 60) & (r < 60)).sum())  # the preview: a deep blue picture
-    return left > 30 and right > 30 and camera > 2000, f"left bones {left} px, right bones {right} px, camera {camera} px"
+    found = f"left bones {left} px, right bones {right} px, camera {camera} px"
+    return left > 30 and right > 30 and camera > 2000, found
 
 
 def test_the_page_shows_the_skeleton_and_the_camera_frame_in_a_real_browser(tmp_path: Path) -> None:

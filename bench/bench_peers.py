@@ -15,8 +15,9 @@ ours are turned into the camera's axes), mean distance to the truth (``mpjpe``);
 the rotation that best aligns each frame (``r_mpjpe``: MediaPipe's world frame is often turned by
 tens of degrees, its hips sometimes nearly coincident; sizes still count); and after a similarity
 Procrustes alignment (``pa_mpjpe``: shape only, no rotation, scale or offset error). ``found`` is
-the fraction of frames where a method published a pose. Milliseconds are each method's own per-frame time on this machine (ours: the steady-tracking pipeline; MediaPipe:
-``Pose.process``), measured in the same run.
+the fraction of frames where a method published a pose. Milliseconds are each method's own
+per-frame time on this machine (ours: the steady-tracking pipeline; MediaPipe: ``Pose.process``),
+measured in the same run.
 
 MediaPipe needs ``numpy<2``, ``opencv-python-headless<4.12`` and ``protobuf<5``: it runs in its own
 environment (``.venv-peers``, see the Makefile) through ``bench/peers/mediapipe_pose.py``; the

@@ -42,10 +42,19 @@ from typing import IO, Any
 
 import zenoh
 
+from protocol.net.follow import TrackerFollower
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.game_messages import GameEvent, GameEventKind, GamePhase, GameState, encode_game, pack_projectiles
-from protocol.wire.keys import DEFAULT_TRACKER_ID, body_key, game_event_key, game_state_key, pose_key, validate_id
+from protocol.wire.keys import (
+    ALL_ALIVE,
+    DEFAULT_TRACKER_ID,
+    body_key,
+    game_event_key,
+    game_state_key,
+    pose_key,
+    validate_id,
+)
 from protocol.wire.messages import BodyInfo, PoseFrame
 from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame, clamp_count
 
@@ -70,6 +79,7 @@ class AppOptions:
     max_frames: int | None = None
     duration: float | None = None
     exit_when_over: bool = False
+    follow: bool = False  # follow the first tracker alive (liveliness) and switch when it goes
     state_hz: float = 5.0
     next_round_s: float = 5.0
     poll_s: float = 0.002
@@ -335,14 +345,28 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
     t_start = time.monotonic()
     with open_session(conf) as session:
         entities: list[Any] = []
+        subs: list[Any] = []
         try:
-            pose_sub = session.declare_subscriber(pose_key(tid))
-            body_sub = session.declare_subscriber(body_key(tid))
+            follower = TrackerFollower() if options.follow else None
+            live_sub = session.liveliness().declare_subscriber(ALL_ALIVE, history=True) if follower else None
+            if live_sub is not None:
+                entities.append(live_sub)
             ev_pub = session.declare_publisher(game_event_key(gid))
             st_pub = session.declare_publisher(game_state_key(gid))
-            entities += [pose_sub, body_sub, ev_pub, st_pub]
+            entities += [ev_pub, st_pub]
             client = GameClient(gid, options, gconf, ev_pub.put, st_pub.put, result=result, log_file=fh, sink=sink)
-            log.info("game %r listening on %s, publishing on %s and %s", gid, pose_key(tid), game_event_key(gid),
+
+            def follow(tracker: str | None) -> None:
+                undeclare_quietly(*subs)
+                subs.clear()
+                if tracker is not None:
+                    subs.extend([session.declare_subscriber(pose_key(tracker)),
+                                 session.declare_subscriber(body_key(tracker))])
+                    client.want_body = True
+
+            follow(None if follower else tid)
+            log.info("game %r listening on %s, publishing on %s and %s", gid,
+                     "the first tracker alive" if follower else pose_key(tid), game_event_key(gid),
                      game_state_key(gid))
             while not stop.is_set():
                 if options.duration is not None and time.monotonic() - t_start >= options.duration:
@@ -351,13 +375,25 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
                 if options.max_frames is not None and result.frames >= options.max_frames:
                     result.reason = "frames"
                     break
+                if follower is not None and live_sub is not None:
+                    changed = False
+                    while (tok := live_sub.try_recv()) is not None:
+                        changed |= follower.on_token(str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT)
+                    if changed:
+                        follow(follower.current)
+                        result.counters["tracker_switches"] = follower.switches
+                if not subs:
+                    stop.wait(options.poll_s)
+                    continue
+                pose_sub, body_sub = subs
+                current = follower.current if follower is not None else tid
                 body_sample = body_sub.try_recv()
                 if body_sample is not None:
                     client.on_body(bytes(body_sample.payload.to_bytes()))
                     client.want_body = False
-                elif client.want_body and tid != "*":  # once at the start and once per new stream
+                elif client.want_body and current not in (None, "*"):  # once at the start and once per new stream
                     client.want_body = False
-                    for reply in session.get(body_key(tid), timeout=_BODY_QUERY_S):
+                    for reply in session.get(body_key(str(current)), timeout=_BODY_QUERY_S):
                         if reply.ok is not None:
                             client.on_body(bytes(reply.ok.payload.to_bytes()))
                 sample = pose_sub.try_recv()
@@ -368,6 +404,7 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
                     break
             client.finish()
         finally:
+            undeclare_quietly(*subs)
             undeclare_quietly(*reversed(entities))
             if fh is not None:
                 fh.close()

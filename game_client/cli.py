@@ -118,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"game id in the key expressions (default: '{DEFAULT_TRACKER_ID}')")
     up.add_argument("--tracker", type=_id(True), default=DEFAULT_TRACKER_ID,
                     help=f"tracker id to follow, or '{ANY}' for any (default: '{DEFAULT_TRACKER_ID}')")
+    up.add_argument("--follow", action="store_true",
+                    help="follow the first tracker alive on the network instead of --tracker, and switch to "
+                         "the next one when it stops (trackers announce themselves with a liveliness token)")
     up.add_argument("--log", type=Path, metavar="PATH", help="write the JSON-lines game log here")
     up.add_argument("--frames-out", type=Path, metavar="DIR", help="write rendered frames (PNG, GIF, MP4) into DIR")
     up.add_argument("--max-frames", type=_positive_int, metavar="N", help="stop after N pose frames")
@@ -214,7 +217,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .app import AppOptions, run_game
 
     options = AppOptions(game_id=args.id, tracker_id=args.tracker, log_path=args.log, frames_out=args.frames_out,
-                         max_frames=args.max_frames, duration=args.duration, exit_when_over=args.exit_when_over)
+                         max_frames=args.max_frames, duration=args.duration, exit_when_over=args.exit_when_over,
+                         follow=args.follow)
     conf = config_from_args(args, role="subscriber")
     with stop_on_signals(threading.Event()) as stop:
         result = run_game(conf, options, stop)

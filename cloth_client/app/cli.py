@@ -138,6 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.add_argument("--id", type=_tracker_id, default=DEFAULT_TRACKER_ID,
                     help=f"tracker id to follow (default '{DEFAULT_TRACKER_ID}')")
+    rp.add_argument("--follow", action="store_true",
+                    help="follow the first tracker alive on the network instead of --id, and switch to the next "
+                         "one when it stops (the mesh is still published under --id)")
     rp.add_argument("--frames-out", type=Path, metavar="DIR", help="write rendered frames as PNG files into DIR")
     rp.add_argument("--publish-mesh", action="store_true",
                     help="publish the cloth vertices on mocap/cloth/<id>/mesh for another viewer")
@@ -201,7 +204,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     opts = LiveOptions(tracker_id=args.id, garment=args.garment, particles=args.particles,
                        frames_out=args.frames_out, video=args.video, video_fps=args.video_fps, size=args.size,
-                       publish_mesh=args.publish_mesh, max_frames=args.max_frames, duration=args.duration)
+                       publish_mesh=args.publish_mesh, max_frames=args.max_frames, duration=args.duration,
+                       follow=args.follow)
     try:
         conf = config_from_args(args)
     except (ValueError, FileNotFoundError) as exc:

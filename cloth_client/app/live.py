@@ -53,9 +53,10 @@ from cloth_client.avatar.capsules import body_of
 from cloth_client.solver.cloth import ClothParams
 from cloth_client.solver.driver import ClothDriver
 from cloth_client.solver.garment import DEFAULT_PARTICLES, Garment, make_garment
+from protocol.net.follow import TrackerFollower
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
-from protocol.wire.keys import body_key, cloth_mesh_key, pose_key
+from protocol.wire.keys import ALL_ALIVE, body_key, cloth_mesh_key, pose_key
 from protocol.wire.media import ClothMesh, encode_cloth_mesh
 from protocol.wire.messages import BodyInfo, PoseFrame
 from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame
@@ -92,6 +93,7 @@ class LiveOptions:
     max_frames: int | None = None
     duration: float | None = None
     params: ClothParams | None = None
+    follow: bool = False  # follow the first tracker alive (liveliness) instead of tracker_id
 
 
 @dataclass
@@ -392,15 +394,30 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
     client: ClothClient | None = None
     with open_session(conf) as session:
         entities: list[Any] = []
+        subs: list[Any] = []
         try:
-            pose_sub = session.declare_subscriber(pose_key(opts.tracker_id))
-            body_sub = session.declare_subscriber(body_key(opts.tracker_id))
-            entities += [pose_sub, body_sub]
+            follower = TrackerFollower() if opts.follow else None
+            live_sub = session.liveliness().declare_subscriber(ALL_ALIVE, history=True) if follower else None
+            if live_sub is not None:
+                entities.append(live_sub)
             publisher = session.declare_publisher(cloth_mesh_key(opts.tracker_id)) if opts.publish_mesh else None
             if publisher is not None:
                 entities.append(publisher)
             client = ClothClient(opts, result, publisher)
-            log.info("cloth client: %s on tracker %r (%s)", opts.garment, opts.tracker_id, pose_key(opts.tracker_id))
+            tracker: str | None = None
+
+            def follow(tid: str | None) -> None:
+                undeclare_quietly(*subs)
+                subs.clear()
+                if tid is not None:
+                    subs.extend([session.declare_subscriber(pose_key(tid)), session.declare_subscriber(body_key(tid))])
+                    assert client is not None
+                    client.want_body = True
+
+            tracker = None if follower else opts.tracker_id
+            follow(tracker)
+            where = "the first tracker alive" if follower else f"tracker {opts.tracker_id!r}"
+            log.info("cloth client: %s on %s", opts.garment, where)
             last_query = -np.inf
             while not stop.is_set():
                 now = time.monotonic()
@@ -410,6 +427,18 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
                 if opts.max_frames is not None and result.frames >= opts.max_frames:
                     result.reason = "max_frames"
                     break
+                if follower is not None and live_sub is not None:
+                    changed = False
+                    while (tok := live_sub.try_recv()) is not None:
+                        changed |= follower.on_token(str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT)
+                    if changed:
+                        tracker = follower.current
+                        follow(tracker)
+                        result.counters["tracker_switches"] = follower.switches
+                if not subs or tracker is None:
+                    stop.wait(_POLL_S)
+                    continue
+                pose_sub, body_sub = subs
                 new_info = None
                 while (s := body_sub.try_recv()) is not None:
                     new_info = client.decode_body(_payload(s)) or new_info
@@ -417,7 +446,7 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
                 if new_info is None and ask and now - last_query >= _BODY_RETRY_S:
                     last_query = now
                     client.want_body = False  # once per new stream; without a body, every second
-                    new_info = _query_body(session, body_key(opts.tracker_id), client)
+                    new_info = _query_body(session, body_key(tracker), client)
                 if new_info is not None:
                     if client.info is None or not _same_body(client.info, new_info):
                         client.set_body(new_info)
@@ -433,6 +462,7 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
         finally:
             if client is not None:
                 client.close()
+            undeclare_quietly(*subs)
             undeclare_quietly(*reversed(entities))
     result.wall_s = time.monotonic() - t_start
     log.info("cloth client stopped (%s): %d frames, %d rendered, %d published, %d malformed", result.reason,

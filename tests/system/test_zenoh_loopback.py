@@ -288,3 +288,34 @@ def test_demo_replay_succeeds(spawn: Callable[[list[str]], Proc]) -> None:
     time.sleep(0.1)
     summary = json.loads(proc.out[-1])
     assert summary["ok"] and summary["in_order"] and summary["frames"] >= 25 and summary["first_seq"] == 0
+
+
+# ------------------------------------------------------------------- two trackers, clients that follow
+
+
+def test_game_and_cloth_follow_the_first_tracker_alive_and_switch_when_it_stops(
+        spawn: Callable[[list[str]], Proc]) -> None:
+    """Two trackers (replays) and the clients in client mode on one router: ``--follow`` takes the
+    first tracker alive and, when it stops, the next one; play goes on."""
+    ep = free_tcp_endpoint()
+    router = spawn([sys.executable, "-m", "protocol.net.router", "--listen", ep])
+    assert router.wait_for("listening"), router.err
+    client = ["--mode", "client", "--connect", ep]
+    first = spawn([*TRACKER, "replay", "--synthetic-wave", "--loop", "--id", "first", "--rate", "30", *client])
+    assert first.wait_for("publishing"), first.err
+    second = spawn([*TRACKER, "replay", "--synthetic-wave", "--loop", "--id", "second", "--rate", "30", *client])
+    assert second.wait_for("publishing"), second.err
+    game = spawn([sys.executable, "-m", "game_client", "run", "-v", "--follow", "--duration", "9", "--json", *client])
+    cloth = spawn([sys.executable, "-m", "cloth_client", "run", "--follow", "--duration", "9", "--particles", "300",
+                   *client])
+    assert game.wait_for("first tracker alive"), game.err
+    assert game.wait_for("following tracker 'first'"), game.err
+    time.sleep(3.0)
+    first.stop()
+    assert game.wait_for("following 'second'", timeout=10), game.err
+    assert cloth.wait_for("following 'second'", timeout=10), cloth.err
+    assert game.popen.wait(timeout=30) == 0, game.err
+    assert cloth.popen.wait(timeout=60) == 0, cloth.err
+    out = json.loads(game.out[-1])
+    assert out["counters"]["tracker_switches"] == 1
+    assert out["frames"] > 120  # about 9 s at 30 Hz from the two trackers

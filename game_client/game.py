@@ -145,6 +145,7 @@ class GameSnapshot:
     projectiles: tuple[Projectile, ...]
     winner: str = ""
     end_reason: str = ""
+    telegraph_left_s: float = 0.0  # until the attack being wound up is thrown
 
 
 @dataclass
@@ -382,6 +383,7 @@ class Game:
             opponent_x=float(self._opponent.position.x),
             telegraph=self._telegraph[1] if self._telegraph else "",
             projectiles=shots, winner=self.winner, end_reason=self.end_reason,
+            telegraph_left_s=max(0.0, self._telegraph[0] - self.t) if self._telegraph else 0.0,
         )
 
     def lane_of(self, x: float) -> int:

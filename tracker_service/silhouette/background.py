@@ -54,6 +54,9 @@ class BackgroundParams:
     ----------
     chroma_threshold : float
         Mahalanobis distance on chromaticity above which a pixel is foreground.
+    chroma_threshold_subsampled : float
+        The same for a camera whose colour is subsampled (MJPEG, H.264, YUV 4:2:0 or 4:2:2: its
+        colour bleeds across the person's outline; :func:`chroma_subsampled`).
     shadow_ratio, highlight_ratio : float
         Brightness ratios (frame / model) still explained by shadows and highlights.
     brightness_sigmas : float
@@ -71,6 +74,7 @@ class BackgroundParams:
     """
 
     chroma_threshold: float = 6.0
+    chroma_threshold_subsampled: float = 9.0
     shadow_ratio: float = 0.6
     highlight_ratio: float = 1.2
     brightness_sigmas: float = 2.0
@@ -101,6 +105,9 @@ class BackgroundModel:
     smooth_sigma : float
         Gaussian smoothing (pixels) applied to every frame before it is compared with the model,
         and to the frames it was learned from; 0 for a quiet camera (:func:`smoothing_for`).
+    subsampled : bool
+        The learning frames' colour is subsampled (:func:`chroma_subsampled`): the chroma test uses
+        ``BackgroundParams.chroma_threshold_subsampled``.
     """
 
     chroma_mean: NDArray[np.float32]
@@ -109,6 +116,7 @@ class BackgroundModel:
     bright_std: NDArray[np.float32]
     n_frames: int
     smooth_sigma: float = 0.0
+    subsampled: bool = False
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -147,13 +155,50 @@ def smoothed(frame: NDArray[np.uint8], sigma: float) -> NDArray[np.uint8]:
     return np.asarray(cv2.GaussianBlur(frame, (0, 0), sigma), np.uint8)
 
 
+#: Chroma detail over luma detail (:func:`chroma_detail`) under which the colour is subsampled: the
+#: synthetic scene's full-resolution colour measures 0.5-0.85, the same frames through JPEG
+#: (q50-90) 0.10-0.14 and through H.264 (CRF 18-34) 0.19-0.39.
+SUBSAMPLED_CHROMA_DETAIL = 0.44
+
+
+def chroma_detail(frame: NDArray[np.uint8]) -> float:
+    """Fine detail of the colour relative to the brightness's: the mean absolute difference of
+    Cr and Cb from their Gaussian blur (sigma 1 px) over the same for Y. Codecs and cameras that
+    keep colour at half resolution (4:2:0, 4:2:2) score far lower than full-resolution colour.
+
+    Parameters
+    ----------
+    frame : (H, W, 3) uint8
+        BGR.
+    """
+    ycc = cv2.cvtColor(np.ascontiguousarray(frame, np.uint8), cv2.COLOR_BGR2YCrCb).astype(np.float32)
+
+    def detail(c: NDArray[np.float32]) -> float:
+        return float(np.abs(c - cv2.GaussianBlur(c, (0, 0), 1.0)).mean())
+
+    return 0.5 * (detail(ycc[..., 1]) + detail(ycc[..., 2])) / max(detail(ycc[..., 0]), 1e-6)
+
+
+def chroma_subsampled(frames: NDArray[np.uint8]) -> bool:
+    """Whether the frames' ``(N, H, W, 3)`` colour is subsampled (the median of up to 5 frames'
+    :func:`chroma_detail` under :data:`SUBSAMPLED_CHROMA_DETAIL`)."""
+    pick = frames[np.linspace(0, len(frames) - 1, min(5, len(frames))).astype(int)]
+    return bool(np.median([chroma_detail(f) for f in pick]) < SUBSAMPLED_CHROMA_DETAIL)
+
+
 def _learned(frames: NDArray[np.uint8], learn: Callable[[NDArray[np.uint8]], BackgroundModel]) -> BackgroundModel:
-    """``learn(frames)``, and for a noisy camera again on smoothed frames (``smooth_sigma`` set)."""
-    model = learn(frames)
+    """``learn(frames)``, and for a noisy camera again on smoothed frames (``smooth_sigma`` set);
+    ``subsampled`` measured."""
+    model = replace(learn(frames), subsampled=chroma_subsampled(frames))
     sigma = smoothing_for(model.bright_std)
     if sigma <= 0:
         return model
-    return replace(learn(smoothed(frames, sigma)), smooth_sigma=sigma)
+    return replace(learn(smoothed(frames, sigma)), smooth_sigma=sigma, subsampled=model.subsampled)
+
+
+def chroma_threshold_of(model: BackgroundModel, params: BackgroundParams) -> float:
+    """The chroma test's threshold for this camera (higher when its colour is subsampled)."""
+    return params.chroma_threshold_subsampled if model.subsampled else params.chroma_threshold
 
 
 def learn_background(frames: NDArray[np.uint8], chroma_std_floor: float = 0.004,
@@ -251,7 +296,8 @@ def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
     frame = smoothed(frame, model.smooth_sigma)
     foreground_kernel(np.ascontiguousarray(frame, np.uint8), np.ascontiguousarray(model.chroma_mean, f32),
                       np.ascontiguousarray(model.chroma_inv_var, f32), np.ascontiguousarray(model.bright_mean, f32),
-                      np.ascontiguousarray(model.bright_std, f32), params.chroma_threshold, params.shadow_ratio,
+                      np.ascontiguousarray(model.bright_std, f32), chroma_threshold_of(model, params),
+                      params.shadow_ratio,
                       params.highlight_ratio, params.brightness_sigmas, params.dark_level, out)
     return out
 
@@ -279,7 +325,7 @@ def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
     margin = params.brightness_sigmas * model.bright_std / np.maximum(model.bright_mean, 1.0)
     bright_fg = (ratio < params.shadow_ratio - margin) | (ratio > params.highlight_ratio + margin)
     lit = (model.bright_mean > params.dark_level) & (b > params.dark_level)
-    return bright_fg | (lit & (maha > params.chroma_threshold))
+    return bright_fg | (lit & (maha > chroma_threshold_of(model, params)))
 
 
 def clean_mask(mask: NDArray[np.bool_], params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:

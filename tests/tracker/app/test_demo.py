@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from protocol.formats.video import VideoWriter, video_info
+from protocol.net.session import free_tcp_endpoint
 from tracker_service.app.cli import build_parser
 from tracker_service.app.commands.demo import DEFAULT_ROUND, SystemDemoOptions
 from tracker_service.app.demo_mosaic import (
@@ -52,6 +53,9 @@ def test_options() -> None:
     assert isinstance(o, SystemDemoOptions)
     assert (o.script, o.video, o.system_duration, o.out, o.json) == (Path("s.toml"), False, 3.0, Path("x"), True)
     assert _parse(["--replay"]) == DemoOptions(duration=6.0, replay=True)
+    assert o.view_port is None
+    assert _parse(["--view"]).view_port == 8080  # type: ignore[attr-defined]
+    assert _parse(["--view", "9001"]).view_port == 9001  # type: ignore[attr-defined]
 
 
 def test_performed_and_matched_gestures() -> None:
@@ -148,8 +152,9 @@ def test_whole_system_short_round(tmp_path: Path, small_db) -> None:  # type: ig
     strike): ends by itself, exit 0, a consistent summary and an H.264 mosaic (on the tests' small
     database: the counts are checked for consistency, not for recognition)."""
     script = REPO_ROOT / "game_client" / "scripts" / "strike.toml"
-    proc, summary = _run_demo(["--script", str(script), "--out", str(tmp_path), "--json", "--db", str(small_db[-1])],
-                              timeout=150)
+    port = free_tcp_endpoint().rsplit(":", 1)[1]  # the live viewer runs beside them
+    proc, summary = _run_demo(["--script", str(script), "--out", str(tmp_path), "--json", "--db", str(small_db[-1]),
+                               "--view", port], timeout=150)
     why = [ln for ln in proc.stderr.splitlines() if ln.startswith("mocap-tracker demo:")]
     assert proc.returncode == 0, (why, proc.stderr[-2000:])
     assert KEYS <= set(summary) and summary["ok"] is True

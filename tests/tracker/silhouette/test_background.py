@@ -201,3 +201,26 @@ def _unsmoothed(frames: np.ndarray):  # type: ignore[no-untyped-def]
 
     c, b = _chroma_bright(frames)
     return _model(c.mean(axis=0), c.std(axis=0), b.mean(axis=0), b.std(axis=0), len(frames), 0.004, 2.0)
+
+
+def test_a_camera_whose_colour_is_subsampled_gets_the_wider_chroma_threshold(rng: np.random.Generator) -> None:
+    """MJPEG and H.264 keep colour at half resolution (4:2:0): detected from the learning frames,
+    and the chroma test is wider for them (their colour bleeds across the person's outline)."""
+    from protocol.formats.video import VideoWriter  # noqa: F401  (PyAV is a dependency)
+    from tracker_service.scene.variation import h264_roundtrip
+    from tracker_service.silhouette.background import chroma_detail, chroma_subsampled, chroma_threshold_of
+
+    base = np.clip(_room(rng) + rng.normal(0, 6, (120, 160, 3)), 0, 255)  # colour detail at every pixel
+    frames = _frames(rng, base, 6)
+    assert chroma_detail(frames[0]) > 0.44 and not chroma_subsampled(frames)
+    jpeg = np.stack([cv2.imdecode(cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 70])[1], cv2.IMREAD_COLOR)
+                     for f in frames])
+    h264 = np.stack([h264_roundtrip(f, 28) for f in frames])
+    assert chroma_subsampled(jpeg) and chroma_subsampled(h264)
+    params = BackgroundParams()
+    quiet, coded = learn_background(frames), learn_background(jpeg)
+    assert not quiet.subsampled and chroma_threshold_of(quiet, params) == params.chroma_threshold
+    assert coded.subsampled and chroma_threshold_of(coded, params) == params.chroma_threshold_subsampled
+    frame = jpeg[0].copy()
+    frame[_person_mask()] = (90, 140, 200)
+    assert np.array_equal(raw_foreground(coded, frame), raw_foreground_reference(coded, frame))

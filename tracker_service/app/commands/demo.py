@@ -73,6 +73,8 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
                     help="no mosaic video (the clients write no frames either): the JSON summary only")
     dp.add_argument("--seed", type=int, default=0, help="synthetic scene seed (default 0)")
     dp.add_argument("--db", metavar="PATH", help="template database folder (default: out/db/mMA, built on first use)")
+    dp.add_argument("--view", type=int, nargs="?", const=8080, default=None, metavar="PORT",
+                    help="also start mocap-view: watch the round live at http://127.0.0.1:PORT/ (default 8080)")
     return dp
 
 
@@ -87,13 +89,14 @@ class SystemDemoOptions(DemoOptions):
     seed: int = 0
     system_duration: float | None = None
     db: str | None = None
+    view_port: int | None = None
 
 
 def options_from_args(args: argparse.Namespace) -> DemoOptions:
     if args.replay:
         return DemoOptions(duration=args.duration or 6.0, json=args.json, replay=True)
     return SystemDemoOptions(json=args.json, script=args.script, out=args.out, video=not args.no_video,
-                             seed=args.seed, system_duration=args.duration, db=args.db)
+                             seed=args.seed, system_duration=args.duration, db=args.db, view_port=args.view)
 
 
 def main(options: DemoOptions) -> int:
@@ -265,7 +268,10 @@ def _system_commands(o: SystemDemoOptions, db: Path, endpoint: str, out: Path) -
         tracker += ["--video", str(out / "tracker_overlay.mp4")]
         game += ["--frames-out", str(out / "game")]
         cloth += ["--frames-out", str(out / "cloth"), "--video-fps", "15", "--size", "360x360"]
-    return {"tracker": tracker, "game": game, "cloth": cloth}
+    cmds = {"tracker": tracker, "game": game, "cloth": cloth}
+    if o.view_port is not None:
+        cmds["view"] = [py, "-m", "tracker_service.app.view", "--port", str(o.view_port), *zenoh_args]
+    return cmds
 
 
 def _display(path: Path) -> str:
@@ -324,12 +330,16 @@ def run_system_demo(o: SystemDemoOptions, stop: threading.Event) -> int:
             event_sub = session.declare_subscriber(game_event_key(_TID))
             subs += [pose_sub, status_sub, event_sub]
             say(f"demo: Zenoh router on {endpoint}; starting the game and cloth clients")
-            for name in ("game", "cloth"):
+            starting: list[str] = [n for n in ("game", "cloth", "view") if n in cmds]
+            for name in starting:
                 children[name] = _Child.start(name, cmds[name], out / "logs")
-            for name, needle in (("game", "listening on"), ("cloth", "cloth client:")):
+            needles = {"game": "listening on", "cloth": "cloth client:", "view": "serving http"}
+            for name, needle in ((n, needles[n]) for n in starting):
                 if not children[name].wait_for(needle, 180.0, stop):
                     failed = f"the {name} client did not start"
                     break
+            if failed is None and "view" in cmds:
+                say(f"demo: watch it live at http://127.0.0.1:{o.view_port}/")
             if failed is None:
                 say(f"demo: clients subscribed; starting the tracker on the synthetic scene playing {script.name}")
                 children["tracker"] = tracker = _Child.start("tracker", cmds["tracker"], out / "logs")
@@ -344,10 +354,10 @@ def run_system_demo(o: SystemDemoOptions, stop: threading.Event) -> int:
             for child in children.values():  # all at once: the game writes its GIF and MP4 on the way out
                 if child.proc.poll() is None:
                     child.proc.send_signal(signal.SIGINT)
-            for name, child in children.items():
+            for who, child in children.items():
                 rc = stop_child(child.proc, 1.0 if stop.is_set() else _CLIENT_STOP_S, signalled=True)
                 if rc != 0 and failed is None:
-                    failed = f"the {name} process exited with status {rc}"
+                    failed = f"the {who} process exited with status {rc}"
             undeclare_quietly(*reversed(subs))
     for child in children.values():
         child.drained()

@@ -31,6 +31,7 @@ from tracker_service.pipeline.process import (
 )
 from tracker_service.scene.subject import SubjectSpec
 from tracker_service.scene.synthetic import SceneConfig, SceneFrame, SyntheticScene
+from tracker_service.scene.variation import h264_roundtrip
 from tracker_service.templates.database import LoadedDatabase
 
 __all__ = ["EvalOptions", "acceleration_error", "evaluate_motion", "reacquisition_times", "subject_measurements"]
@@ -292,6 +293,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             fr = scene.frame(i)
             was_tracking = state.phase == "tracking"  # the frame that ends initialisation scores the bodies
             image = fr.image if options.jpeg_quality is None else jpeg_roundtrip(fr.image, options.jpeg_quality)
+            if options.h264_crf is not None:
+                image = h264_roundtrip(image, options.h264_crf)
             state, res = process_frame(state, image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
             if observe is not None:
                 observe(fr, state, res)
@@ -350,6 +353,7 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "reinitialisations": int(state.reinits),
         "poses_sha256": tally.digest.hexdigest(),
         "jpeg_quality": options.jpeg_quality,
+        "h264_crf": options.h264_crf,
         "variation": list(options.variation),
         "subject": {"group": scene.subject.spec.group, "chest_m": round(float(scene.subject.spec.chest), 3),
                     "stoop_deg": round(float(np.degrees(scene.subject.spec.stoop)), 1)},

@@ -175,6 +175,8 @@ class EvalOptions:
     jpeg_quality : int, optional
         Every rendered frame passes through JPEG at this quality before the tracker sees it (a
         webcam's MJPEG); None: lossless.
+    h264_crf : int, optional
+        Every rendered frame passes through H.264 (an intra frame at this CRF) first; None: not.
     variation : tuple of str
         Domain-randomisation axes of the scene (:mod:`tracker_service.scene.variation`).
     """
@@ -187,6 +189,7 @@ class EvalOptions:
     in_place_travel_m: float = 2.0
     subject_measurements: tuple[str, ...] = ()
     jpeg_quality: int | None = None
+    h264_crf: int | None = None
     variation: tuple[str, ...] = ()
 
 

@@ -44,6 +44,8 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     ep.add_argument("--jpeg-quality", type=int, metavar="Q",
                     help="pass every frame through JPEG at quality Q (1-100) first, as a webcam's MJPEG does "
                          "(default: lossless)")
+    ep.add_argument("--h264-crf", type=int, metavar="CRF",
+                    help="pass every frame through H.264 at this CRF (0-51; 28 is a typical stream) first")
     ep.add_argument("--vary", metavar="AXES", default="",
                     help="domain randomisation of the scene: comma-separated axes of body, clothing, appearance, "
                          "backdrop, lights, sensor, compression, or all (default: none)")
@@ -56,6 +58,8 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     tracker = tracker_options(args, subject=True)
     if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:
         raise UsageError("--jpeg-quality must be in 1..100")
+    if args.h264_crf is not None and not 0 <= args.h264_crf <= 51:
+        raise UsageError("--h264-crf must be in 0..51")
     from tracker_service.scene.variation import parse_axes
 
     try:
@@ -65,7 +69,8 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     return EvalCommandOptions(motion=args.bvh or args.script, tracker=tracker, json=args.json,
                               evaluation=EvalOptions(frames=args.frames, seed=args.seed,
                                                      force_loss_every_s=args.force_loss_every,
-                                                     jpeg_quality=args.jpeg_quality, variation=variation),
+                                                     jpeg_quality=args.jpeg_quality, h264_crf=args.h264_crf,
+                                                     variation=variation),
                               progress=not args.quiet, video=args.video)
 
 

@@ -28,28 +28,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-from _host import host_probe  # bench/ is the script's folder
+from _host import bench_meta, held_out_spread  # bench/ is the script's folder
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from protocol.formats.load import load_motion
-from protocol.formats.mocap_data import index_entries, mocap_root
+from protocol.formats.mocap_data import mocap_root
 from protocol.skeleton import JOINT_INDEX
 from tracker_service.app.evaluate import EvalOptions, evaluate_motion
 from tracker_service.app.options import TrackerOptions
 from tracker_service.app.resources import ensure_db
 from tracker_service.app.tracker_config import tracker_config
-from tracker_service.build.database import is_held_out
 from tracker_service.pipeline.warmup import warm_up
 from tracker_service.scene.variation import AXES
 
@@ -152,8 +149,7 @@ def main() -> int:
     if unknown := [a for a in rows if a != "default" and a not in AXES]:
         raise SystemExit(f"unknown axis {unknown}; choose from default, {', '.join(AXES)}")
     seeds = [int(s) for s in args.seeds.split(",")]
-    held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
-    pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
+    pick = held_out_spread(args.takes)
     loaded = ensure_db(None)
     cfg = tracker_config(TrackerOptions())
     out = Path(args.out)
@@ -190,9 +186,7 @@ def main() -> int:
                      f"{m('r_mpjpe_ours'):.2f} / {m('r_mpjpe_mediapipe'):.2f} | "
                      f"{m('pa_mpjpe_ours'):.2f} / {m('pa_mpjpe_mediapipe'):.2f} | {wins}/{len(c)} | "
                      f"{m('found_ours'):.2f} / {m('found_mediapipe'):.2f} | {ms_ours:.1f} / {m('ms_mediapipe'):.1f} |")
-    meta = {"command": "bench/bench_peers.py " + " ".join(sys.argv[1:]), "date": time.strftime("%Y-%m-%d"),
-            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "host": host_probe(),
-            "seeds": seeds, "takes": [e.path for e in pick], "frames": args.frames, "wall_s": round(time.time() - t0)}
+    meta = bench_meta("bench_peers.py", t0, seeds=seeds, takes=[e.path for e in pick], frames=args.frames)
     out.mkdir(parents=True, exist_ok=True)
     (out / "peers.json").write_text(json.dumps({"meta": meta, "rows": summary, "runs": cells}, indent=1))
     (out / "peers.md").write_text("\n".join(lines) + "\n")

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import platform
 import subprocess
 import sys
 import time
@@ -26,11 +25,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _host import host_probe  # bench/ is the script's folder
+from _host import bench_meta, held_out_spread  # bench/ is the script's folder
 from tqdm import tqdm
 
-from protocol.formats.mocap_data import index_entries, mocap_root
-from tracker_service.build.database import is_held_out
+from protocol.formats.mocap_data import mocap_root
 from tracker_service.scene.variation import AXES
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,8 +56,7 @@ def main() -> int:
     if unknown := [a for a in rows if a != "default" and a not in AXES]:
         raise SystemExit(f"unknown axis {unknown}; choose from default, {', '.join(AXES)}")
     seeds = [int(s) for s in args.seeds.split(",")]
-    held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
-    pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
+    pick = held_out_spread(args.takes)
     root = mocap_root()
     cells = list(itertools.product(rows, pick, seeds))
     t0 = time.time()
@@ -86,9 +83,7 @@ def main() -> int:
                      f"{', '.join(what)} |")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"command": "bench/bench_robustness.py " + " ".join(sys.argv[1:]), "date": time.strftime("%Y-%m-%d"),
-            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "host": host_probe(),
-            "seeds": seeds, "takes": [e.path for e in pick], "frames": args.frames, "wall_s": round(time.time() - t0)}
+    meta = bench_meta("bench_robustness.py", t0, seeds=seeds, takes=[e.path for e in pick], frames=args.frames)
     (out / "robustness.json").write_text(json.dumps({"meta": meta, "rows": summary, "runs": records}, indent=1))
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

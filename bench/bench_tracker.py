@@ -25,7 +25,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from _host import host_probe  # bench/ is the script's folder
+from _host import held_out_spread, host_probe  # bench/ is the script's folder
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
@@ -132,8 +132,7 @@ def main() -> int:
     res["appearance_net"] = None if net is None else [
         {k: m[k] for k in ("samples", "val_rms_x", "val_rms_y", "val_rms_z") if k in m}
         for m in (net.meta.get("members") or [net.meta])]  # one entry per network of the ensemble
-    held = [e for i, e in enumerate(index_entries()) if is_held_out(i)]
-    pick = [held[int(k)] for k in np.linspace(0, len(held) - 1, min(args.takes, len(held)))]
+    pick = held_out_spread(args.takes)
     configs = {
         "xor_dm2": TrackerConfig(distance="xor"),
         "cwxor_dm2": TrackerConfig(distance="cwxor"),

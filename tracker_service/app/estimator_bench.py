@@ -167,6 +167,40 @@ def _run(est: Any, clips: list[list[Any]], truths: list[Any], cam: Any, body: An
             "joint_angle_deg": [round(v, 2) for v in angles]}
 
 
+def _recovery(est: Any, clips: list[list[Any]], truths: list[Any], cam: Any, body: Any) -> dict[str, Any]:
+    """A forced loss in the middle of every clip (the estimator started afresh, as on a lost track):
+    frames until its error is back within ``max(10 cm, 1.25 x its error before the loss)``."""
+    import numpy as np
+
+    from protocol import fk
+    from tracker_service.estimators.particles import world_pose
+
+    frames: list[int] = []
+    lost = 0
+    for observations, truth in zip(clips, truths, strict=True):
+        st = est.init()
+        k_loss = len(observations) // 2
+        before: list[float] = []
+        back: int | None = None
+        for k, (obs, tj) in enumerate(zip(observations, truth, strict=True)):
+            if k == k_loss:
+                st = est.init()
+            st, e = est.step(st, obs)
+            j = fk(world_pose(e, cam, mean=True), body)
+            err = float(np.linalg.norm((j - j[0]) - (tj - tj[0]), axis=1).mean())
+            if k < k_loss:
+                before.append(err)
+            elif back is None and err <= max(0.10, 1.25 * float(np.mean(before or [0.0]))):
+                back = k - k_loss + 1
+        if back is None:
+            lost += 1
+        else:
+            frames.append(back)
+    return {"recovery_frames_avg": float(np.mean(frames)) if frames else None,
+            "recovery_frames_max": int(max(frames)) if frames else None, "recovered": len(frames),
+            "losses": len(frames) + lost}
+
+
 def run_bench(options: BenchOptions, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Build the small database, render the clips, run every estimator; the ``table.json`` object
     (``meta``, ``results`` per estimator, ``repeats`` of DRS/SRS)."""
@@ -226,6 +260,8 @@ def run_bench(options: BenchOptions, progress: Callable[[str], None] | None = No
         for key in options.estimators:
             say(f"running {key}")
             results[key] = _run(make(key, options.seed), observations, truths, cam, db_body, joint)
+            say(f"running {key} with a forced loss in every clip")
+            results[key] |= _recovery(make(key, options.seed), observations, truths, cam, db_body)
             if key in _REPEATED:
                 runs = [results[key]]
                 for r in range(1, options.repeats):
@@ -253,13 +289,15 @@ def markdown_table(report: dict[str, Any]) -> str:
     lines = [f"clip: {', '.join(m['clips'])}; {m['frames']} frames (every {m['step']}), subject {m['subject']}, "
              f"seed {m['seed']}", "",
              "| estimator | MPJPE mean (cm) | MPJPE MAP (cm) | frames < 10 cm | ms/frame min / avg / max "
-             "| evaluations / frame | time / tree | error / tree |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| evaluations / frame | back after a forced loss (frames, avg / max) | time / tree | error / tree |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for key, r in report["results"].items():
         ratio = (f"{r['time_vs_tree']:.2f}", f"{r['error_vs_tree']:.2f}") if has_ref else ("—", "—")
+        rec = ("—" if "losses" not in r else f"{r['recovered']}/{r['losses']} back"
+               + (f", {r['recovery_frames_avg']:.1f} / {r['recovery_frames_max']}" if r["recovered"] else ""))
         lines.append(f"| {key} | {r['mpjpe_cm']:.1f} | {r['mpjpe_map_cm']:.1f} | {100 * r['within_10cm']:.0f} % "
                      f"| {r['ms_min']:.1f} / {r['ms_avg']:.1f} / {r['ms_max']:.1f} | {r['evals_per_frame']:.0f} "
-                     f"| {ratio[0]} | {ratio[1]} |")
+                     f"| {rec} | {ratio[0]} | {ratio[1]} |")
     spread = [(key, [x["mpjpe_cm"] for x in runs]) for key, runs in report.get("repeats", {}).items()
               if len(runs) > 1]
     lines += [""] if spread else []

@@ -38,6 +38,10 @@ def test_a_tiny_run_writes_the_table_and_the_plots(tmp_path: Path, capsys: pytes
     assert len(drs["per_frame_cm"]) == 6 and len(drs["per_joint_mean_cm"]) == len(report["meta"]["joint_names"])
     assert drs["evals_per_frame"] > 0 and 0.0 <= drs["within_10cm"] <= 1.0
     assert [r["seed"] for r in report["repeats"]["drs"]] == [0, 1]
+    for r in (tree, drs):  # a forced loss in the middle of every clip
+        assert r["losses"] >= 1 and 0 <= r["recovered"] <= r["losses"]
+        assert r["recovered"] == 0 or 1 <= r["recovery_frames_avg"] <= r["recovery_frames_max"]
+    assert "back after a forced loss" in table
     for name in PLOTS:
         png = (out / name).read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from protocol.motion import Motion
 from tracker_service.app.options import EvalOptions
 from tracker_service.body.measured import given_body
+from tracker_service.camera import Camera
 from tracker_service.pipeline.process import (
     FrameResult,
     TrackerConfig,
@@ -32,6 +33,7 @@ from tracker_service.pipeline.process import (
 from tracker_service.scene.subject import SubjectSpec
 from tracker_service.scene.synthetic import SceneConfig, SceneFrame, SyntheticScene
 from tracker_service.scene.variation import h264_roundtrip
+from tracker_service.sources.frame_source import fit_frame
 from tracker_service.templates.database import LoadedDatabase
 
 __all__ = ["EvalOptions", "acceleration_error", "evaluate_motion", "reacquisition_times", "subject_measurements"]
@@ -166,7 +168,7 @@ class _Tally:
             self.acc_e.append(je - je[0])
             self.acc_t.append(jt - jt[0])
         self.root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
-        self.errs2d.append(float(np.linalg.norm(loaded.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
+        self.errs2d.append(float(np.linalg.norm(fr.truth.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
         if steady:
             self.t_pre.append(res.stage_ms.get("preprocess", 0.0) + res.stage_ms.get("background", 0.0))
             self.t_est.append(res.stage_ms.get("estimate", 0.0))
@@ -218,7 +220,8 @@ def _scene(motion: Motion, loaded: LoadedDatabase, options: EvalOptions) -> Synt
     travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
     scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=options.fps,
                        empty_prefix=options.empty_prefix, in_place=bool(travel > options.in_place_travel_m),
-                       variation=options.variation)
+                       variation=options.variation,
+                       camera=None if options.input_size is None else widened(loaded.camera, options.input_size))
     return SyntheticScene(motion, seed=options.seed, config=scfg)
 
 
@@ -245,6 +248,18 @@ def confidence_error_spearman(confidence: list[float], error: list[float]) -> fl
     from scipy.stats import spearmanr
 
     return round(float(spearmanr(c, e).statistic), 3)
+
+
+def widened(camera: Camera, size: tuple[int, int]) -> Camera:
+    """A camera of ``size`` = ``(width, height)`` pixels whose frames, once brought to the working
+    size (:func:`~tracker_service.sources.frame_source.fit_frame`: scaled to cover it, the centre
+    cropped), are ``camera``'s: the same pose, the same vertical field of view when the frame is
+    wider than 4:3 (the horizontal one when it is taller), square pixels, the principal point at
+    the centre (640x480: the same camera at twice the resolution; 1280x720: a wider lens)."""
+    w, h = int(size[0]), int(size[1])
+    s = min(w / camera.width, h / camera.height)
+    return replace(camera, width=w, height=h, fx=camera.fx * s, fy=camera.fy * s, cx=(w - 1) / 2.0,
+                   cy=(h - 1) / 2.0)
 
 
 def jpeg_roundtrip(image: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
@@ -295,6 +310,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             image = fr.image if options.jpeg_quality is None else jpeg_roundtrip(fr.image, options.jpeg_quality)
             if options.h264_crf is not None:
                 image = h264_roundtrip(image, options.h264_crf)
+            if image.shape[:2] != (loaded.camera.height, loaded.camera.width):  # as `run` does (one path)
+                image = fit_frame(image, loaded.camera.size)
             state, res = process_frame(state, image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
             if observe is not None:
                 observe(fr, state, res)
@@ -354,6 +371,7 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "poses_sha256": tally.digest.hexdigest(),
         "jpeg_quality": options.jpeg_quality,
         "h264_crf": options.h264_crf,
+        "input_size": list(options.input_size) if options.input_size else None,
         "variation": list(options.variation),
         "subject": {"group": scene.subject.spec.group, "chest_m": round(float(scene.subject.spec.chest), 3),
                     "stoop_deg": round(float(np.degrees(scene.subject.spec.stoop)), 1)},

@@ -179,6 +179,9 @@ class EvalOptions:
         Every rendered frame passes through H.264 (an intra frame at this CRF) first; None: not.
     variation : tuple of str
         Domain-randomisation axes of the scene (:mod:`tracker_service.scene.variation`).
+    input_size : (int, int), optional
+        Film the scene at this ``(width, height)`` with :func:`~tracker_service.app.evaluate.widened`
+        camera and bring every frame to the working size as ``run`` does; None: the working size.
     """
 
     frames: int | None = None
@@ -191,6 +194,7 @@ class EvalOptions:
     jpeg_quality: int | None = None
     h264_crf: int | None = None
     variation: tuple[str, ...] = ()
+    input_size: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)

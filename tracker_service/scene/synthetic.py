@@ -69,6 +69,9 @@ class SceneConfig:
     variation : tuple of str
         Domain-randomisation axes (:data:`tracker_service.scene.variation.AXES`); empty: the
         default draw.
+    camera : Camera, optional
+        The camera filming the scene (its size wins over ``width`` and ``height``); None: the
+        paper's camera at ``width`` x ``height``.
     """
 
     width: int = 320
@@ -81,6 +84,7 @@ class SceneConfig:
     face_camera: bool = True
     in_place: bool = False
     variation: tuple[str, ...] = ()
+    camera: Camera | None = None
 
 
 @dataclass(frozen=True)
@@ -216,7 +220,8 @@ class SyntheticScene:
         self.poses = ground(placed, self.subject.body)
         self.fps = float(m.fps)
         self.motion_name = m.name
-        self.camera = default_camera(cfg.width, cfg.height, dist=cfg.distortion)
+        self.camera = cfg.camera if cfg.camera is not None else default_camera(cfg.width, cfg.height,
+                                                                                dist=cfg.distortion)
         self._renderer = SceneRenderer(self.subject, self.camera, rng, self.variation,
                                        np.random.default_rng([self.seed, 3, 1]))
         self._jitter = rng.uniform(0.0, 2 * np.pi, 4), rng.uniform(0.2, 0.6, 2)
@@ -272,7 +277,7 @@ class SyntheticScene:
         rng = np.random.default_rng([self.seed, 1, i])
         cam = self.frame_camera(i)
         k = i - cfg.empty_prefix
-        h, w = cfg.height, cfg.width
+        h, w = self.camera.height, self.camera.width
         joints = np.full((N_JOINTS, 3), np.nan)
         if k < 0:
             linear = self._renderer.empty(cam)

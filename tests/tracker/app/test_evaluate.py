@@ -78,3 +78,17 @@ def test_confidence_error_correlation() -> None:
     assert abs(confidence_error_spearman(list(rng.random(50)), list(err)) or 0.0) < 0.4
     assert confidence_error_spearman([0.5] * 50, list(err)) is None  # a constant confidence says nothing
     assert confidence_error_spearman([0.1, 0.2], [0.3, 0.1]) is None  # too few frames
+
+
+@pytest.mark.parametrize("size", [(640, 480), (1280, 720), (320, 240), (480, 640)])
+def test_a_widened_camera_brought_to_the_working_size_is_the_working_camera(size: tuple[int, int]) -> None:
+    from tracker_service.app.evaluate import widened
+    from tracker_service.camera import default_camera
+
+    cam = default_camera()
+    wide = widened(cam, size)
+    assert wide.size == size and np.allclose(wide.pose, cam.pose)
+    back = wide.fitted(cam.size)
+    assert back.size == cam.size
+    assert back.fx == pytest.approx(cam.fx, rel=2e-3) and back.fy == pytest.approx(cam.fy, rel=2e-3)
+    assert abs(back.cx - cam.cx) <= 0.5 and abs(back.cy - cam.cy) <= 0.5  # the crop's rounding

@@ -46,6 +46,9 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
                          "(default: lossless)")
     ep.add_argument("--h264-crf", type=int, metavar="CRF",
                     help="pass every frame through H.264 at this CRF (0-51; 28 is a typical stream) first")
+    ep.add_argument("--input-size", metavar="WxH",
+                    help="film the scene at this size (e.g. 640x480, 1280x720: a camera whose frames, scaled and "
+                         "centre-cropped as run does, are the working camera's) (default: the working size)")
     ep.add_argument("--vary", metavar="AXES", default="",
                     help="domain randomisation of the scene: comma-separated axes of body, clothing, appearance, "
                          "backdrop, lights, sensor, compression, or all (default: none)")
@@ -62,6 +65,16 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
         raise UsageError("--h264-crf must be in 0..51")
     from tracker_service.scene.variation import parse_axes
 
+    size = None
+    if args.input_size:
+        try:
+            w, h = (int(v) for v in args.input_size.lower().split("x"))
+        except ValueError:
+            raise UsageError(f"--input-size: expected WxH, e.g. 640x480, got {args.input_size!r}") from None
+        if not (160 <= w <= 3840 and 120 <= h <= 2160):
+            raise UsageError("--input-size: width 160-3840, height 120-2160")
+        size = (w, h)
+
     try:
         variation = parse_axes(args.vary)
     except ValueError as e:
@@ -70,7 +83,7 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
                               evaluation=EvalOptions(frames=args.frames, seed=args.seed,
                                                      force_loss_every_s=args.force_loss_every,
                                                      jpeg_quality=args.jpeg_quality, h264_crf=args.h264_crf,
-                                                     variation=variation),
+                                                     variation=variation, input_size=size),
                               progress=not args.quiet, video=args.video)
 
 

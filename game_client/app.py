@@ -42,7 +42,7 @@ from typing import IO, Any
 
 import zenoh
 
-from protocol.net.follow import TrackerFollower
+from protocol.net.follow import TrackerFollower, ask_alive
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.game_messages import GameEvent, GameEventKind, GamePhase, GameState, encode_game, pack_projectiles
@@ -347,6 +347,7 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
         entities: list[Any] = []
         subs: list[Any] = []
         try:
+            asked = -1e9  # when the network was last asked for the trackers alive
             follower = TrackerFollower() if options.follow else None
             live_sub = session.liveliness().declare_subscriber(ALL_ALIVE, history=True) if follower else None
             if live_sub is not None:
@@ -376,9 +377,13 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
                     result.reason = "frames"
                     break
                 if follower is not None and live_sub is not None:
-                    changed = False
+                    batch = []
                     while (tok := live_sub.try_recv()) is not None:
-                        changed |= follower.on_token(str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT)
+                        batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
+                    changed = follower.on_tokens(batch) if batch else False
+                    if follower.current is None and time.monotonic() - asked >= 1.0:
+                        asked = time.monotonic()
+                        changed |= ask_alive(session, follower)
                     if changed:
                         follow(follower.current)
                         result.counters["tracker_switches"] = follower.switches

@@ -53,7 +53,7 @@ from cloth_client.avatar.capsules import body_of
 from cloth_client.solver.cloth import ClothParams
 from cloth_client.solver.driver import ClothDriver
 from cloth_client.solver.garment import DEFAULT_PARTICLES, Garment, make_garment
-from protocol.net.follow import TrackerFollower
+from protocol.net.follow import TrackerFollower, ask_alive
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.keys import ALL_ALIVE, body_key, cloth_mesh_key, pose_key
@@ -396,6 +396,7 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
         entities: list[Any] = []
         subs: list[Any] = []
         try:
+            asked = -1e9  # when the network was last asked for the trackers alive
             follower = TrackerFollower() if opts.follow else None
             live_sub = session.liveliness().declare_subscriber(ALL_ALIVE, history=True) if follower else None
             if live_sub is not None:
@@ -428,9 +429,13 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
                     result.reason = "max_frames"
                     break
                 if follower is not None and live_sub is not None:
-                    changed = False
+                    batch = []
                     while (tok := live_sub.try_recv()) is not None:
-                        changed |= follower.on_token(str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT)
+                        batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
+                    changed = follower.on_tokens(batch) if batch else False
+                    if follower.current is None and time.monotonic() - asked >= 1.0:
+                        asked = time.monotonic()
+                        changed |= ask_alive(session, follower)
                     if changed:
                         tracker = follower.current
                         follow(tracker)

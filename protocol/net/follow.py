@@ -1,5 +1,6 @@
 """Which tracker a client follows when told to follow whichever is alive (``--follow``): the first
-tracker whose liveliness token appeared, and when it stops or dies, the next one still alive.
+tracker whose liveliness token appeared (of those found together, the first by id, so that clients
+started beside each other follow the same one), and when it stops or dies, the next one still alive.
 
 Pure bookkeeping over liveliness samples (``mocap/tracker/<id>/alive``, ``PUT`` when a tracker
 appears, ``DELETE`` when it goes); the apps declare the liveliness subscriber (with history, so
@@ -11,10 +12,11 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
-from protocol.wire.keys import split_key
+from protocol.wire.keys import ALL_ALIVE, split_key
 
-__all__ = ["TrackerFollower"]
+__all__ = ["TrackerFollower", "ask_alive"]
 
 log = logging.getLogger(__name__)
 
@@ -41,18 +43,29 @@ class TrackerFollower:
     def on_token(self, key: str, alive: bool) -> bool:
         """Take one liveliness sample (``key``: ``mocap/tracker/<id>/alive``); True when the
         followed tracker changed. Keys that are not a tracker's token are ignored."""
-        try:
-            parts = split_key(key)
-        except ValueError:
-            return False
-        if parts.domain != "tracker" or parts.leaf != "alive":
-            return False
-        if alive:
-            if parts.id not in self.alive:
-                self.alive[parts.id] = self._seen
-                self._seen += 1
-        else:
-            self.alive.pop(parts.id, None)
+        return self.on_tokens([(key, alive)])
+
+    def on_tokens(self, samples: list[tuple[str, bool]]) -> bool:
+        """Take the liveliness samples that arrived together; trackers that appear in the same
+        batch are ordered by id, so that every client started beside them follows the same one.
+        True when the followed tracker changed."""
+        new: list[str] = []
+        for key, alive in samples:
+            try:
+                parts = split_key(key)
+            except ValueError:
+                continue
+            if parts.domain != "tracker" or parts.leaf != "alive":
+                continue
+            if alive:
+                if parts.id not in self.alive and parts.id not in new:
+                    new.append(parts.id)
+            else:
+                self.alive.pop(parts.id, None)
+                new = [n for n in new if n != parts.id]
+        for tid in sorted(new):
+            self.alive[tid] = self._seen
+            self._seen += 1
         if self.current is not None and self.current in self.alive:
             return False
         first = min(self.alive, key=self.alive.__getitem__) if self.alive else None
@@ -65,3 +78,11 @@ class TrackerFollower:
             log.info("following tracker %r", first)
         self.current = first
         return True
+
+
+def ask_alive(session: Any, follower: TrackerFollower, timeout: float = 0.5) -> bool:
+    """Ask the network which trackers are alive (a liveliness ``get``) and take every answer as a
+    ``PUT``; True when the followed tracker changed. For a client that follows nobody yet: a
+    liveliness subscriber's history can miss tokens while its first connection is being made."""
+    keys = [str(r.ok.key_expr) for r in session.liveliness().get(ALL_ALIVE, timeout=timeout) if r.ok is not None]
+    return follower.on_tokens([(k, True) for k in keys])

@@ -305,12 +305,13 @@ def test_game_and_cloth_follow_the_first_tracker_alive_and_switch_when_it_stops(
     assert first.wait_for("publishing"), first.err
     second = spawn([*TRACKER, "replay", "--synthetic-wave", "--loop", "--id", "second", "--rate", "30", *client])
     assert second.wait_for("publishing"), second.err
-    game = spawn([sys.executable, "-m", "game_client", "run", "-v", "--follow", "--duration", "9", "--json", *client])
-    cloth = spawn([sys.executable, "-m", "cloth_client", "run", "--follow", "--duration", "9", "--particles", "300",
-                   *client])
+    game = spawn([sys.executable, "-m", "game_client", "run", "-v", "--follow", "--duration", "12", "--json", *client])
+    cloth = spawn([sys.executable, "-m", "cloth_client", "run", "--follow", "--duration", "12", "--particles", "300",
+                   "--log-level", "INFO", *client])
     assert game.wait_for("first tracker alive"), game.err
     assert game.wait_for("following tracker 'first'"), game.err
-    time.sleep(3.0)
+    assert cloth.wait_for("following tracker 'first'", timeout=30), cloth.err
+    time.sleep(1.0)
     first.stop()
     assert game.wait_for("following 'second'", timeout=10), game.err
     assert cloth.wait_for("following 'second'", timeout=10), cloth.err
@@ -318,4 +319,4 @@ def test_game_and_cloth_follow_the_first_tracker_alive_and_switch_when_it_stops(
     assert cloth.popen.wait(timeout=60) == 0, cloth.err
     out = json.loads(game.out[-1])
     assert out["counters"]["tracker_switches"] == 1
-    assert out["frames"] > 120  # about 9 s at 30 Hz from the two trackers
+    assert out["frames"] > 120  # several seconds at 30 Hz from the two trackers

@@ -176,8 +176,9 @@ def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.
         scores = score_bodies(scores, sel_feats, raw, db, db_body, camera, sel_params, cands)
     if phase == "initialising" and frames_in_phase >= config.init_frames:
         if config.body_candidates:
-            choice: BodyChoice = BodyChoice.from_scores(
-                scores, db_body, float(np.median(statures)) if statures else float("nan"))
+            choice: BodyChoice = BodyChoice.from_scores(  # a model the user named is used as it is
+                scores, db_body, float(np.median(statures)) if statures else float("nan"),
+                sized=len(config.body_candidates) > 1)
             body, scale = choice.body, choice.scale
         elif config.body is not None:
             body, scale = config.body, config.body.height / db_body.height

@@ -268,7 +268,7 @@ def run_from_options(options: RunCommandOptions, stop: threading.Event) -> int:
     """``mocap-tracker run``: open the frame source, load the database and the tracker
     configuration, and run :func:`run_tracker` until the source ends, a limit or ``stop`` (set by
     the caller's signal handling). Returns the exit status."""
-    from tracker_service.app.resources import DEFAULT_SCRIPT, ensure_db
+    from tracker_service.app.resources import DEFAULT_SCRIPT, ensure_db, requested_camera
     from tracker_service.app.tracker_config import tracker_config
     from tracker_service.sources.frame_source import open_source, parse_source
 
@@ -278,7 +278,7 @@ def run_from_options(options: RunCommandOptions, stop: threading.Event) -> int:
     if stop.is_set():
         return 0
     source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
-                         seed=options.seed)
+                         seed=options.seed, camera=requested_camera(options.tracker))
     try:
         conf = options.zenoh.config()
     except BaseException:

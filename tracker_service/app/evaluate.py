@@ -221,7 +221,7 @@ def _scene(motion: Motion, loaded: LoadedDatabase, options: EvalOptions) -> Synt
     scfg = SceneConfig(width=loaded.camera.width, height=loaded.camera.height, fps=options.fps,
                        empty_prefix=options.empty_prefix, in_place=bool(travel > options.in_place_travel_m),
                        variation=options.variation,
-                       camera=None if options.input_size is None else widened(loaded.camera, options.input_size))
+                       camera=_scene_camera(loaded.camera, options))
     return SyntheticScene(motion, seed=options.seed, config=scfg)
 
 
@@ -248,6 +248,15 @@ def confidence_error_spearman(confidence: list[float], error: list[float]) -> fl
     from scipy.stats import spearmanr
 
     return round(float(spearmanr(c, e).statistic), 3)
+
+
+def _scene_camera(working: Camera, options: EvalOptions) -> Camera | None:
+    """The camera filming the scene: the one the tracker was told about (``--camera`` and the
+    shorthands), at ``input_size`` if given; None: the working camera."""
+    base = options.camera if options.camera is not None else working
+    if options.input_size is not None:
+        return widened(base.fitted(working.size), options.input_size)
+    return options.camera
 
 
 def widened(camera: Camera, size: tuple[int, int]) -> Camera:
@@ -372,6 +381,7 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "jpeg_quality": options.jpeg_quality,
         "h264_crf": options.h264_crf,
         "input_size": list(options.input_size) if options.input_size else None,
+        "camera": scene.camera.summary(),
         "variation": list(options.variation),
         "subject": {"group": scene.subject.spec.group, "chest_m": round(float(scene.subject.spec.chest), 3),
                     "stoop_deg": round(float(np.degrees(scene.subject.spec.stoop)), 1)},

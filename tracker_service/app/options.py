@@ -17,6 +17,8 @@ from protocol.wire.keys import DEFAULT_TRACKER_ID
 if TYPE_CHECKING:
     import zenoh
 
+    from tracker_service.camera import Camera
+
 __all__ = [
     "BuildDbOptions",
     "DemoOptions",
@@ -182,6 +184,9 @@ class EvalOptions:
     input_size : (int, int), optional
         Film the scene at this ``(width, height)`` with :func:`~tracker_service.app.evaluate.widened`
         camera and bring every frame to the working size as ``run`` does; None: the working size.
+    camera : Camera, optional
+        The camera filming the scene (the one given to the tracker: ``--camera`` or the shorthands);
+        None: the working camera.
     """
 
     frames: int | None = None
@@ -195,6 +200,7 @@ class EvalOptions:
     h264_crf: int | None = None
     variation: tuple[str, ...] = ()
     input_size: tuple[int, int] | None = None
+    camera: Camera | None = None
 
 
 @dataclass(frozen=True)

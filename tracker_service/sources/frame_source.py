@@ -225,19 +225,24 @@ class SyntheticSource:
     counters: dict[str, int] = field(default_factory=lambda: {"frames": 0, "bad_frames": 0})
     last_truth: Any = None
 
+    size: tuple[int, int] | None = None  # (width, height) the frames are brought to (None: as rendered)
+
     def __iter__(self) -> Iterator[tuple[float, NDArray[np.uint8]]]:
         for i in range(self.scene.n_frames):
             f = self.scene.frame(i)
             self.last_truth = f.truth
             self.counters["frames"] += 1
-            yield f.timestamp, f.image
+            image = f.image
+            if self.size is not None and image.shape[1::-1] != self.size:
+                image = fit_frame(image, self.size)
+            yield f.timestamp, image
 
     def close(self) -> None:
         self.scene.close()
 
 
 def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path | None = None,
-                seed: int = 0, empty_prefix: int = 15, loop: bool = False) -> FrameSource:
+                seed: int = 0, empty_prefix: int = 15, loop: bool = False, camera: Any = None) -> FrameSource:
     """Open a frame source.
 
     Parameters
@@ -253,6 +258,9 @@ def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path
         Empty-room frames before the person appears (synthetic only).
     loop : bool
         Unused for now (reserved for looping sources).
+    camera : Camera, optional
+        The camera filming the synthetic scene (the one the tracker is told about); its frames are
+        brought to ``size``. None: the paper's camera at ``size``.
 
     Raises
     ------
@@ -271,7 +279,8 @@ def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path
         raise SourceError(f"synthetic source: motion file not found: {motion}")
     try:
         scene = SyntheticScene.from_file(str(motion), seed=seed,
-                                         config=SceneConfig(width=size[0], height=size[1], empty_prefix=empty_prefix))
+                                         config=SceneConfig(width=size[0], height=size[1], empty_prefix=empty_prefix,
+                                                            camera=camera))
     except (OSError, ValueError) as e:
         raise SourceError(f"synthetic source: {e}") from None
-    return SyntheticSource(scene)
+    return SyntheticSource(scene, size=size)

@@ -32,3 +32,31 @@ def test_a_wide_frame_keeps_its_vertical_field_of_view() -> None:
     out = fit_frame(img, (320, 240))
     col = out[:, 158:162, 0].max(axis=1)
     assert (col > 0).all()  # the whole height survives; the sides are cropped
+
+
+def test_the_synthetic_source_films_with_the_camera_the_tracker_is_told_about() -> None:
+    """``run --source synthetic --camera ...`` and ``eval --camera ...``: the scene is filmed by that
+    camera and its frames are brought to the working size like a real camera's."""
+    from pathlib import Path
+
+    from tracker_service.app.evaluate import _scene_camera, widened
+    from tracker_service.app.options import EvalOptions
+    from tracker_service.camera import default_camera, placed_camera
+    from tracker_service.sources.frame_source import open_source, parse_source
+
+    script = Path(__file__).resolve().parents[3] / "protocol" / "scripts" / "crouch.toml"
+    cam = placed_camera(height_m=1.8, tilt_deg=15.0, width=640, height=480)
+    src = open_source(parse_source(f"synthetic:{script}"), (320, 240), camera=cam, empty_prefix=1)
+    try:
+        assert src.scene.camera is cam  # type: ignore[attr-defined]
+        _, frame = next(iter(src))
+        assert frame.shape == (240, 320, 3)
+    finally:
+        src.close()
+    work = default_camera()
+    assert _scene_camera(work, EvalOptions()) is None
+    assert _scene_camera(work, EvalOptions(camera=cam)) is cam
+    wide = _scene_camera(work, EvalOptions(camera=cam, input_size=(1280, 720)))
+    expect = widened(cam.fitted((320, 240)), (1280, 720))
+    assert wide is not None and wide.size == (1280, 720) and np.allclose(wide.K, expect.K)
+    assert np.allclose(wide.pose, cam.pose)

@@ -151,13 +151,12 @@ def main(options: EvalCommandOptions) -> int:
 
     motion = load_motion(options.motion, fps=30.0)
     camera = requested_camera(options.tracker)
-    if camera is not None:
-        log.warning("eval films its synthetic scene with the default camera; the camera option changes only the "
-                    "templates (a mismatch test)")
     loaded = ensure_db(options.tracker.db, camera=camera)
     cfg = tracker_config(options.tracker)
     warm_up(loaded.db, loaded.body, loaded.camera, cfg)  # kernels compiled before the clock starts
-    evaluation = replace(options.evaluation, subject_measurements=subject_keys(options.tracker.measurements))
+    # the scene is filmed by the camera the tracker is told about (its frames fitted to the working size)
+    evaluation = replace(options.evaluation, subject_measurements=subject_keys(options.tracker.measurements),
+                         camera=camera)
 
     progress = _Progress(sys.stderr) if options.progress else None
     if options.video is None:

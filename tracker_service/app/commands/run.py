@@ -70,9 +70,6 @@ def with_camera_db(options: RunCommandOptions) -> RunCommandOptions:
     camera = requested_camera(options.tracker)
     if camera is None:
         return options
-    if options.source.split(":", 1)[0] == "synthetic":
-        log.warning("the synthetic source films its scene with the default camera; the camera option changes "
-                    "only the templates")
     db = resolve_db(options.tracker.db, camera)
     return replace(options, tracker=replace(options.tracker, db=str(db)))
 

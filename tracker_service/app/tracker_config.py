@@ -3,18 +3,21 @@ options (:class:`~tracker_service.app.options.TrackerOptions`)."""
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
 from typing import TYPE_CHECKING, TypeGuard
 
 from tracker_service.app.options import TrackerOptions
-from tracker_service.app.resources import ensure_appearance
+from tracker_service.app.resources import ensure_appearance, requested_camera
 
 if TYPE_CHECKING:
     from protocol.skeleton import Body
     from tracker_service.pipeline.process import TrackerConfig
 
 __all__ = ["is_subject", "subject_keys", "tracker_config"]
+
+log = logging.getLogger(__name__)
 
 #: The keys of ``--measurements subject:KEY,...`` (eval: the synthetic person's own measurements).
 SUBJECT_KEYS = ("height", "group", "chest", "waist", "hip", "shoulder", "arm", "leg")
@@ -101,6 +104,17 @@ def tracker_config(options: TrackerOptions) -> TrackerConfig:
     if not options.reading_filter:
         cfg = replace(cfg, reading_filter=None)
     net = ensure_appearance(options.appearance, train_if_missing=False)
+    if net is not None:
+        from tracker_service.cues.appearance import appearance_unfit
+
+        camera = requested_camera(options)
+        why = appearance_unfit(camera) if camera is not None else None
+        if why is not None and options.appearance is None:  # the shipped network, on a camera it never saw
+            log.warning("appearance cue off: %s; the silhouettes alone track (name a network trained for this "
+                        "camera with --appearance PATH)", why)
+            net = None
+        elif why is not None:
+            log.warning("the appearance network %s reads this camera's frames although %s", options.appearance, why)
     if net is not None:
         cfg = replace(cfg, appearance=net)
     return cfg

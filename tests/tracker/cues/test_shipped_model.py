@@ -34,3 +34,17 @@ def test_the_tracker_loads_it_by_default() -> None:
     net = ensure_appearance(None, train_if_missing=False)
     assert net is not None and len(net.members) + 1 == json.loads(
         shipped_appearance_path().with_suffix(".json").read_text())["members"]  # type: ignore[union-attr]
+
+
+def test_the_shipped_network_is_not_used_on_a_camera_placement_it_never_saw() -> None:
+    from tracker_service.app.options import TrackerOptions
+    from tracker_service.app.tracker_config import tracker_config
+    from tracker_service.camera import default_camera, placed_camera
+    from tracker_service.cues.appearance import appearance_unfit
+
+    assert appearance_unfit(default_camera()) is None
+    assert appearance_unfit(placed_camera(distance_m=4.5, hfov_deg=50.0)) is None  # distance and lens are free
+    assert "tilted" in (appearance_unfit(placed_camera(height_m=1.3, tilt_deg=15.0)) or "")
+    assert "high" in (appearance_unfit(placed_camera(height_m=1.8)) or "")
+    assert tracker_config(TrackerOptions()).appearance is not None
+    assert tracker_config(TrackerOptions(camera_height_m=1.8, camera_tilt_deg=15.0)).appearance is None

@@ -42,7 +42,7 @@ from typing import IO, Any
 
 import zenoh
 
-from protocol.net.follow import TrackerFollower, ask_alive
+from protocol.net.follow import TrackerFollower, follow_step
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.game_messages import GameEvent, GameEventKind, GamePhase, GameState, encode_game, pack_projectiles
@@ -377,13 +377,7 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
                     result.reason = "frames"
                     break
                 if follower is not None and live_sub is not None:
-                    batch = []
-                    while (tok := live_sub.try_recv()) is not None:
-                        batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
-                    changed = follower.on_tokens(batch) if batch else False
-                    if follower.current is None and time.monotonic() - asked >= 1.0:
-                        asked = time.monotonic()
-                        changed |= ask_alive(session, follower)
+                    changed, asked = follow_step(session, live_sub, follower, asked, time.monotonic())
                     if changed:
                         follow(follower.current)
                         result.counters["tracker_switches"] = follower.switches

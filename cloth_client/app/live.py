@@ -53,7 +53,7 @@ from cloth_client.avatar.capsules import body_of
 from cloth_client.solver.cloth import ClothParams
 from cloth_client.solver.driver import ClothDriver
 from cloth_client.solver.garment import DEFAULT_PARTICLES, Garment, make_garment
-from protocol.net.follow import TrackerFollower, ask_alive
+from protocol.net.follow import TrackerFollower, follow_step
 from protocol.net.session import open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.keys import ALL_ALIVE, body_key, cloth_mesh_key, pose_key
@@ -429,13 +429,7 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
                     result.reason = "max_frames"
                     break
                 if follower is not None and live_sub is not None:
-                    batch = []
-                    while (tok := live_sub.try_recv()) is not None:
-                        batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
-                    changed = follower.on_tokens(batch) if batch else False
-                    if follower.current is None and time.monotonic() - asked >= 1.0:
-                        asked = time.monotonic()
-                        changed |= ask_alive(session, follower)
+                    changed, asked = follow_step(session, live_sub, follower, asked, time.monotonic())
                     if changed:
                         tracker = follower.current
                         follow(tracker)

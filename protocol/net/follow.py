@@ -16,7 +16,7 @@ from typing import Any
 
 from protocol.wire.keys import ALL_ALIVE, split_key
 
-__all__ = ["TrackerFollower", "ask_alive"]
+__all__ = ["TrackerFollower", "ask_alive", "follow_step"]
 
 log = logging.getLogger(__name__)
 
@@ -86,3 +86,27 @@ def ask_alive(session: Any, follower: TrackerFollower, timeout: float = 0.5) -> 
     liveliness subscriber's history can miss tokens while its first connection is being made."""
     keys = [str(r.ok.key_expr) for r in session.liveliness().get(ALL_ALIVE, timeout=timeout) if r.ok is not None]
     return follower.on_tokens([(k, True) for k in keys])
+
+
+def follow_step(session: Any, live_sub: Any, follower: TrackerFollower, asked_at: float, now: float,
+                ask_every_s: float = 1.0) -> tuple[bool, float]:
+    """One poll of a following client: take the liveliness samples waiting on ``live_sub`` and,
+    while nobody is followed, ask the network at most every ``ask_every_s`` seconds.
+
+    Returns
+    -------
+    changed : bool
+        The followed tracker changed (re-subscribe to ``follower.current``).
+    asked_at : float
+        When the network was last asked (``now`` if it was asked now).
+    """
+    import zenoh
+
+    batch = []
+    while (tok := live_sub.try_recv()) is not None:
+        batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
+    changed = follower.on_tokens(batch) if batch else False
+    if follower.current is None and now - asked_at >= ask_every_s:
+        asked_at = now
+        changed |= ask_alive(session, follower)
+    return changed, asked_at

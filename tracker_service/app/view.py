@@ -71,7 +71,7 @@ class _Page:
         server.initial_camera.look_at = (0.0, 1.0, 0.0)
         self.images: dict[str, Any] = {}
         self.texts: dict[str, Any] = {}
-        self.cloth_topology: dict[str, int] = {}
+        self.shown: dict[str, object] = {}  # node -> the message last drawn there (a new one redraws it)
         self.summary = server.gui.add_markdown("waiting for trackers, games and cloth clients ...")
 
     def _text(self, name: str, lines: list[str]) -> None:
@@ -81,17 +81,25 @@ class _Page:
         elif self.texts[name].content != body:
             self.texts[name].content = body
 
+    def _new(self, node: str, msg: object) -> bool:
+        """Whether ``msg`` is not what ``node`` shows yet (and remember it as shown)."""
+        if msg is None or self.shown.get(node) is msg:
+            return False
+        self.shown[node] = msg
+        return True
+
     def draw(self, state: LiveState) -> None:
+        """Redraw what changed: a skeleton, camera frame or mesh only when its message is new."""
         now = time.monotonic()
         for sid, v in state.trackers.items():
-            if v.pose is not None:
+            if v.pose is not None and self._new(f"/trackers/{sid}/skeleton", v.pose):
                 pts, col = skeleton_segments(v.pose.joints)
                 self.server.scene.add_line_segments(f"/trackers/{sid}/skeleton", points=pts, colors=col,
                                                     line_width=5.0)
                 joints = np.asarray(v.pose.joints, np.float32)
                 self.server.scene.add_point_cloud(f"/trackers/{sid}/joints", points=joints, colors=(255, 220, 90),
                                                   point_size=0.03)
-            if v.preview is not None:
+            if v.preview is not None and self._new(f"camera/{sid}", v.preview):
                 bgr = cv2.imdecode(np.frombuffer(v.preview.jpeg, np.uint8), cv2.IMREAD_COLOR)
                 if bgr is not None:
                     rgb = np.ascontiguousarray(bgr[..., ::-1])
@@ -103,16 +111,17 @@ class _Page:
         for gid in state.games:
             self._text(f"game/{gid}", [*state.game_lines(gid), *list(state.events)[-3:]])
         for cid, cv in state.cloths.items():
-            if cv.mesh is not None and cv.triangles is not None:
+            if cv.mesh is not None and cv.triangles is not None and self._new(f"/cloth/{cid}", cv.mesh):
                 self.server.scene.add_mesh_simple(f"/cloth/{cid}", np.asarray(cv.mesh.vertices, np.float32),
                                                   np.asarray(cv.triangles, np.int32), color=(200, 80, 90),
                                                   side="double")
                 self._text(f"cloth/{cid}", [f"**cloth `{cid}`** {cv.mesh.garment} · {len(cv.mesh.vertices)} "
                                             f"vertices · frame {cv.mesh.seq}"])
         dropped = sum(state.dropped.values())
-        self.summary.content = (f"{len(state.trackers)} tracker(s), {len(state.games)} game(s), "
-                                f"{len(state.cloths)} cloth client(s)" + (f" · {dropped} bad messages ignored"
-                                                                          if dropped else ""))
+        summary = (f"{len(state.trackers)} tracker(s), {len(state.games)} game(s), {len(state.cloths)} cloth "
+                   f"client(s)" + (f" · {dropped} bad messages ignored" if dropped else ""))
+        if self.summary.content != summary:
+            self.summary.content = summary
 
 
 def run_view(args: argparse.Namespace, stop: threading.Event) -> LiveState:

@@ -30,6 +30,7 @@ not axes here: a different camera needs templates for that camera.
 
 from __future__ import annotations
 
+import functools
 import io
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -182,9 +183,10 @@ def vary_lighting(lighting: Lighting, kind: str, rng: np.random.Generator) -> Li
     return lighting
 
 
-def _photographs() -> list[NDArray[np.uint8]]:
+@functools.cache
+def _photographs() -> tuple[NDArray[np.uint8], ...]:
     """RGB photographs that ship with matplotlib (a dependency): a portrait and two relief maps
-    rendered with hill shading."""
+    rendered with hill shading (read and shaded once per process; read-only)."""
     import matplotlib
     from matplotlib.colors import LightSource
 
@@ -203,7 +205,9 @@ def _photographs() -> list[NDArray[np.uint8]]:
         rgb = LightSource(azdeg=315, altdeg=45).shade(z, cmap=matplotlib.colormaps[cmap], vert_exag=0.05,
                                                      blend_mode="soft")
         out.append((np.asarray(rgb)[..., :3] * 255).astype(np.uint8))
-    return out
+    for img in out:
+        img.flags.writeable = False
+    return tuple(out)
 
 
 def backdrop_texture(rng: np.random.Generator, size: tuple[int, int] = (512, 384)) -> NDArray[np.uint8]:

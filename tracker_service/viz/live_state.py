@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.skeleton import PARENTS
+from protocol.skeleton import JOINT_NAMES, PARENTS
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.game_messages import GameEvent, GameState, decode_game
 from protocol.wire.keys import split_key
@@ -167,6 +167,13 @@ class LiveState:
         return lines
 
 
+#: The bones (parent, child) and their colours: the person's left side blue, right red, middle white.
+_BONES = np.array([(p, c) for c, p in enumerate(PARENTS) if p >= 0], np.int64)
+_BONE_RGB = np.repeat(np.array([(70, 130, 255) if JOINT_NAMES[c].startswith("l_") else (255, 60, 60)
+                                if JOINT_NAMES[c].startswith("r_") else (235, 235, 235) for _, c in _BONES],
+                               np.uint8)[:, None, :], 2, axis=1)
+
+
 def skeleton_segments(joints: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
     """Bone segments of a pose for a line renderer.
 
@@ -182,11 +189,4 @@ def skeleton_segments(joints: Any) -> tuple[NDArray[np.float32], NDArray[np.uint
     colours : (B, 2, 3) uint8
         RGB: the person's left side blue, right side red, the middle white.
     """
-    from protocol.skeleton import JOINT_NAMES
-
-    j = np.asarray(joints, np.float32)
-    bones = [(p, c) for c, p in enumerate(PARENTS) if p >= 0]
-    pts = np.stack([np.stack([j[p], j[c]]) for p, c in bones]).astype(np.float32)
-    col = np.array([(70, 130, 255) if JOINT_NAMES[c].startswith("l_") else (255, 60, 60)
-                    if JOINT_NAMES[c].startswith("r_") else (235, 235, 235) for _, c in bones], np.uint8)
-    return pts, np.repeat(col[:, None, :], 2, axis=1)
+    return np.asarray(joints, np.float32)[_BONES], _BONE_RGB

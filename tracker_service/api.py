@@ -27,7 +27,14 @@ from tracker_service.app.resources import ensure_db, requested_camera
 from tracker_service.app.tracker_config import tracker_config
 from tracker_service.camera import Camera
 from tracker_service.paths import REPO_ROOT
-from tracker_service.pipeline.process import FrameResult, TrackerConfig, TrackerState, new_state, process_frame
+from tracker_service.pipeline.process import (
+    FrameResult,
+    TrackerConfig,
+    TrackerState,
+    advice,
+    new_state,
+    process_frame,
+)
 
 __all__ = ["Tracker"]
 
@@ -67,6 +74,12 @@ class Tracker:
         self.state: TrackerState = new_state(self._loaded.body)
         self.last: FrameResult | None = None
         self._seq = 0
+
+    @property
+    def advice(self) -> str:
+        """What the person in front of the camera should do now (empty: nothing), e.g. "step aside for
+        a moment …" while the room behind them is learned again."""
+        return advice(self.state)
 
     def reset(self) -> None:
         """Forget everything (the background included): the next frames are learned as the empty room."""

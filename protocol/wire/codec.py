@@ -249,6 +249,8 @@ _REGISTRY: Final[dict[str, tuple[type[Any], dict[str, Check]]]] = {
         "counters": _map(_int(0)),
         "stage_ms": _map(_float(0.0)),
         "estimator": _OPT_NAME, "body_model": _OPT_NAME,
+        "advice": _str(0),
+        "camera": _map(_float()),
     }),
 }
 #: The registered message classes by wire name (do not modify; use :func:`register_message`).

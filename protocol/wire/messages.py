@@ -27,7 +27,7 @@ __all__ = [
 ]
 
 #: Version of every message type defined here. Bumped on any incompatible change.
-SCHEMA_VERSION: Final[int] = 1
+SCHEMA_VERSION: Final[int] = 2
 
 
 class TrackerState(StrEnum):
@@ -196,6 +196,13 @@ class TrackerStatus:
         Mean milliseconds per frame of each pipeline stage over the last interval.
     estimator : str
     body_model : str
+    advice : str
+        What the person in front of the camera should do now, in words for them (empty when
+        nothing): e.g. step aside while the room behind them is learned again.
+    camera : dict[str, float]
+        The camera's placement as measured from its own frames (empty until measured):
+        ``tilt_deg`` (down positive), ``roll_deg``, ``height_m`` (metres above the floor for a
+        person of ``stature_m``).
     schema_version : int
     """
 
@@ -209,12 +216,15 @@ class TrackerStatus:
     stage_ms: dict[str, float] = field(default_factory=dict)
     estimator: str = ""
     body_model: str = ""
+    advice: str = ""
+    camera: dict[str, float] = field(default_factory=dict)
     schema_version: int = SCHEMA_VERSION
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "state", TrackerState(self.state))
         object.__setattr__(self, "counters", dict(self.counters))
         object.__setattr__(self, "stage_ms", dict(self.stage_ms))
+        object.__setattr__(self, "camera", dict(self.camera))
 
 
 def _fields_equal(a: object, b: object) -> bool:

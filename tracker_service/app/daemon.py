@@ -38,7 +38,7 @@ from protocol.wire.media import PreviewFrame, encode_preview, preview_key
 from protocol.wire.messages import PoseFrame, TrackerState, TrackerStatus, body_info_from_body
 from tracker_service.app.options import RunCommandOptions, RunOptions
 from tracker_service.app.replay_daemon import has_subscriber, wait_for_subscriber
-from tracker_service.pipeline.process import FrameResult, TrackerConfig, new_state, process_frame
+from tracker_service.pipeline.process import FrameResult, TrackerConfig, advice, new_state, process_frame
 from tracker_service.pipeline.warmup import warm_up
 from tracker_service.sources.frame_source import FrameSource
 from tracker_service.templates.database import LoadedDatabase
@@ -120,7 +120,7 @@ class _Run:
         return encode(TrackerStatus(
             tracker_id=self.tid, state=st, ts=time.time(), uptime_s=time.monotonic() - self.t_start, fps=c.fps(),
             frames=c.values["published"], counters=dict(c.values), stage_ms=c.stage_means(),
-            estimator=self.config.estimator, body_model=self.state.body.name))
+            estimator=self.config.estimator, body_model=self.state.body.name, advice=advice(self.state)))
 
     def step(self, ts: float, frame: Any, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher) -> FrameResult | None:
         """Process one frame and publish its pose (and the body when it changed); None for a frame

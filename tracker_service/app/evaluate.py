@@ -149,6 +149,7 @@ class _Tally:
     t_tot: list[float] = field(default_factory=list)
     init_ms: float = 0.0
     evals: list[tuple[int, ...]] = field(default_factory=list)
+    withheld: dict[str, int] = field(default_factory=dict)  # frames whose pose was withheld, by reason
 
     def add(self, i: int, fr: SceneFrame, res: FrameResult, loaded: LoadedDatabase, was_tracking: bool,
             in_loss: bool) -> float:
@@ -327,6 +328,8 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
             if not fr.truth.present:
                 continue
             tally.present += 1
+            if res.rejected is not None:
+                tally.withheld[res.rejected] = tally.withheld.get(res.rejected, 0) + 1
             if res.joints is None:
                 continue
             e = tally.add(i, fr, res, loaded, was_tracking, in_loss=losses.lost_at is not None)
@@ -336,6 +339,12 @@ def evaluate_motion(motion: Motion, loaded: LoadedDatabase, config: TrackerConfi
     finally:
         scene.close()
     return _result(motion, loaded, config, options, tally, losses.at, state, scene)
+
+
+def _after(errs: NDArray[np.float64], t: NDArray[np.float64], t0: float) -> float | None:
+    """Mean of ``errs`` (metres) at times ``t >= t0``, in cm; None when no frame is that late."""
+    late = errs[t >= t0 - 1e-9] if len(errs) else errs
+    return round(float(late.mean() * 100), 2) if len(late) else None
 
 
 def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, options: EvalOptions, tally: _Tally,
@@ -353,7 +362,10 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "tracked_frames": int(tally.tracked),
         "mpjpe_cm": round(float(e_arr.mean() * 100), 2) if len(e_arr) else None,
         "root_error_cm": round(float(np.mean(tally.root_errs) * 100), 2) if tally.root_errs else None,
+        "root_error_max_cm": round(float(np.max(tally.root_errs) * 100), 2) if tally.root_errs else None,
         "mpjpe_2d_px": round(float(np.mean(tally.errs2d)), 2) if tally.errs2d else None,
+        # from 3 s after the person appears: a start with them in view is judged on it
+        "mpjpe_after_3s_cm": _after(e_arr, np.asarray(tally.err_t), options.empty_prefix / options.fps + 3.0),
         "frames_within_10cm": round(float(np.mean(e_arr < 0.10)), 3) if len(e_arr) else 0.0,
         "accel_error_cm": round(accel * 100, 3) if np.isfinite(accel) else None,
         "confidence_error_spearman": confidence_error_spearman(tally.confs, tally.errs),
@@ -377,6 +389,9 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "body_height_m": round(float(state.body.height), 3),
         "stature_measured_m": round(float(np.median(state.statures)), 3) if state.statures else None,
         "reinitialisations": int(state.reinits),
+        "withheld": dict(sorted(tally.withheld.items())),
+        "background_relearns": int(state.relearns),
+        "empty_prefix": options.empty_prefix,
         "poses_sha256": tally.digest.hexdigest(),
         "jpeg_quality": options.jpeg_quality,
         "h264_crf": options.h264_crf,

@@ -15,6 +15,7 @@ from tracker_service.pipeline.refinement import RefineParams
 from tracker_service.pipeline.smoothing import OneEuroParams
 from tracker_service.silhouette.background import BackgroundParams
 from tracker_service.silhouette.features import Distance
+from tracker_service.silhouette.ghost import GhostParams
 
 __all__ = ["TrackerConfig"]
 
@@ -105,6 +106,11 @@ class TrackerConfig:
         when the tracker started was learned into the background (0: never).
     relearn_frames, relearn_every : int
         The robust learning takes every ``relearn_every``-th frame until it has ``relearn_frames``.
+    ghost : GhostParams or None
+        Ghost detection (:mod:`tracker_service.silhouette.ghost`): a silhouette whose outline lies on
+        the background model's edges rather than the frame's is a person learned into the
+        background; its pose is withheld, and after ``ghost.frames`` such frames in a row the
+        background is learned again, robustly; None: off.
     """
 
     distance: Distance = "nwxor"
@@ -136,6 +142,7 @@ class TrackerConfig:
     relearn_after: int = 45
     relearn_frames: int = 21
     relearn_every: int = 4
+    ghost: GhostParams | None = field(default_factory=GhostParams)
 
     def __post_init__(self) -> None:
         if self.body is not None and self.body_candidates:

@@ -43,19 +43,23 @@ from tracker_service.pipeline.state import FrameResult, Phase, TrackerState, new
 from tracker_service.silhouette.background import (
     learn_background,
     learn_background_robust,
+    smoothed,
     subtract,
     update_background,
 )
 from tracker_service.silhouette.features import preprocess
+from tracker_service.silhouette.ghost import ghost_fraction
 
-__all__ = ["FrameResult", "TrackerConfig", "TrackerState", "force_loss", "implausible", "new_state", "process_frame"]
+__all__ = ["FrameResult", "TrackerConfig", "TrackerState", "advice", "force_loss", "implausible", "new_state",
+           "process_frame"]
 
 log = logging.getLogger(__name__)
 
 #: Where a tracked person can be: the pelvis's depth in front of the camera and its height over the floor
 #: (metres). Outside, the silhouette is not a person standing in the room (a background learned with the
-#: person in it, a camera that moved) and the pose is withheld.
-PLAUSIBLE_DEPTH_M = (0.5, 12.0)
+#: person in it, a camera that moved) and the pose is withheld. At 8 m a person is 40 pixels tall in the
+#: working image (320x240, 62.7 degree lens): too small to track.
+PLAUSIBLE_DEPTH_M = (0.5, 8.0)
 PLAUSIBLE_PELVIS_HEIGHT_M = (-0.5, 2.5)
 
 
@@ -71,7 +75,7 @@ def implausible(joints: NDArray[np.float64], camera: Camera) -> str | None:
     Returns
     -------
     str or None
-        ``'non-finite'``, ``'depth'`` (the pelvis closer than 0.5 m or further than 12 m) or
+        ``'non-finite'``, ``'depth'`` (the pelvis closer than 0.5 m or further than 8 m) or
         ``'height'`` (the pelvis below the floor or above 2.5 m).
     """
     if not np.isfinite(joints).all():
@@ -82,6 +86,30 @@ def implausible(joints: NDArray[np.float64], camera: Camera) -> str | None:
     if not PLAUSIBLE_PELVIS_HEIGHT_M[0] <= float(joints[0, 1]) <= PLAUSIBLE_PELVIS_HEIGHT_M[1]:
         return "height"
     return None
+
+
+def advice(state: TrackerState) -> str:
+    """What the person in front of the camera should do now, in words for them (empty: nothing);
+    published in :class:`protocol.wire.messages.TrackerStatus`.
+
+    Parameters
+    ----------
+    state : TrackerState
+
+    Returns
+    -------
+    str
+    """
+    if state.phase == "learning":
+        if state.relearning:
+            return ("step aside for a moment, or move around: the room behind you is being learned again "
+                    "(you were in view when the tracker started)")
+        return "keep out of the camera's view for a moment: the empty room is being learned"
+    if state.ghost_run > 0:
+        return "move a little: part of the room was learned with you in it"
+    if state.phase == "waiting":
+        return "step into the middle of the camera's view"
+    return ""
 
 
 def _near_centre(mask: NDArray[np.bool_], radius: float) -> bool:
@@ -127,6 +155,16 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig)
     return replace(state, learning=frames)
 
 
+def _relearn(state: TrackerState, message: str, *args: object) -> TrackerState:
+    """Learn the background again, robustly (a person was in view when it was learned); ``message``
+    (with ``args``) says why in the log."""
+    log.warning(message + ": learning the background again; step aside or move a little so that the camera "
+                "sees the room behind you", *args)
+    return replace(state, phase="learning", background=None, learning=(), relearning=True, frames_in_phase=0,
+                   withheld=0, ghost_run=0, ghost_recent=(), relearns=state.relearns + 1, filter=None, reading=None,
+                   smooth=None)
+
+
 def _withhold(state: TrackerState, config: TrackerConfig, why: str) -> TrackerState:
     """Count a withheld pose; after ``config.relearn_after`` in a row with no pose published since the
     background was learned (fewer than 10: a person in view when it was learned, the silhouette their ghost),
@@ -134,10 +172,35 @@ def _withhold(state: TrackerState, config: TrackerConfig, why: str) -> TrackerSt
     withheld = state.withheld + 1
     if config.relearn_after <= 0 or withheld < config.relearn_after or state.supported >= 10:
         return replace(state, withheld=withheld)
-    log.warning("no pose the silhouette supports for %d frames (%s): learning the background again; "
-                "step aside or move a little so that the camera sees the room behind you", withheld, why)
-    return replace(state, phase="learning", background=None, learning=(), relearning=True, frames_in_phase=0,
-                   withheld=0, relearns=state.relearns + 1, filter=None, reading=None, smooth=None)
+    return _relearn(state, "no pose the silhouette supports for %d frames (%s)", withheld, why)
+
+
+def _ghost(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_], config: TrackerConfig
+           ) -> tuple[TrackerState, float]:
+    """The silhouette's ghost fraction (:mod:`tracker_service.silhouette.ghost`) and the state with the
+    recent fractions kept and its run of ghost frames (median of the last ``GhostParams.window`` over
+    the threshold, or this one over ``GhostParams.clear``) counted; after ``GhostParams.frames`` in a
+    row whose median is over ``GhostParams.relearn_level`` the background is learned again (the person
+    was in view when it was learned and has moved)."""
+    assert state.background is not None and config.ghost is not None
+    if not mask.any():
+        return replace(state, ghost_run=0, ghost_recent=()), 0.0
+    bg = state.background
+    params = config.ghost
+    g = ghost_fraction(bg.bright_mean, smoothed(frame, bg.smooth_sigma), mask, params)
+    recent = (*state.ghost_recent, g)[-params.window:]
+    level = float(np.median(recent))
+    if state.supported >= params.start_poses:
+        threshold = params.threshold
+    else:
+        threshold = params.threshold_relearned if state.relearns else params.threshold_start
+    if level <= threshold and g <= params.clear:
+        return replace(state, ghost_run=0, ghost_recent=recent), g
+    run = state.ghost_run + 1
+    if run >= params.frames and level > params.relearn_level:
+        return _relearn(state, "the silhouette is the ghost of a person learned into the background "
+                        "(%d frames, ghost fraction %.2f)", run, level), g
+    return replace(state, ghost_run=run, ghost_recent=recent), g
 
 
 def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_], ev: FrameEvidence,
@@ -240,6 +303,13 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if config.background_rate > 0:
         fg = mask if mask.any() else np.zeros_like(mask)
         state = replace(state, background=update_background(state.background, frame, fg, config.background_rate))
+    ghost = 0.0
+    if config.ghost is not None:
+        state, ghost = _ghost(state, frame, mask, config)
+        if state.ghost_run > 0 or state.phase == "learning":  # never a pose fitted to a ghost
+            ms = {"background": (time.perf_counter() - t0) * 1e3}
+            return state, FrameResult(state.phase, mask, None, None, empty_vis, 0.0, float("nan"), (), ms,
+                                      rejected="ghost", ghost=ghost)
     t1 = time.perf_counter()
     ms = {"background": (t1 - t0) * 1e3}
     estimator, state = _estimator(state, db, db_body, camera, config)
@@ -279,7 +349,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         nxt = replace(chosen.state, reinits=nxt.reinits)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
-                                est.reinitialised, chosen.body_changed, why)
+                                est.reinitialised, chosen.body_changed, why, ghost)
     nxt = replace(nxt, withheld=0, supported=nxt.supported + 1)
     return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
-                            est.evaluations, ms, est.reinitialised, move.body_changed)
+                            est.evaluations, ms, est.reinitialised, move.body_changed, ghost=ghost)

@@ -46,6 +46,8 @@ class TrackerState:
     relearning: bool = False  # learning the background again, robustly (a person was in it)
     relearns: int = 0
     supported: int = 0  # poses published since the background was learned
+    ghost_run: int = 0  # consecutive frames whose silhouette was a ghost (silhouette/ghost.py)
+    ghost_recent: tuple[float, ...] = ()  # the last frames' ghost fractions
     estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
 
 
@@ -74,7 +76,10 @@ class FrameResult:
         Why this frame's pose was withheld (``pose`` and ``joints`` are None): ``'depth'``,
         ``'height'`` or ``'non-finite'`` when the estimate put the person where no person can be seen
         from this camera (:func:`tracker_service.pipeline.process.implausible`), ``'low-confidence'``
-        below ``TrackerConfig.min_confidence``.
+        below ``TrackerConfig.min_confidence``, ``'ghost'`` when the silhouette is the ghost of a person
+        learned into the background (:mod:`tracker_service.silhouette.ghost`).
+    ghost : float
+        The silhouette's ghost fraction (0 when not judged).
     """
 
     phase: Phase
@@ -89,6 +94,7 @@ class FrameResult:
     reinitialised: bool = False
     body_changed: bool = False
     rejected: str | None = None
+    ghost: float = 0.0
 
 
 def new_state(body: Body, background: BackgroundModel | None = None) -> TrackerState:

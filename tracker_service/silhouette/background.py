@@ -186,11 +186,12 @@ def chroma_subsampled(frames: NDArray[np.uint8]) -> bool:
     return bool(np.median([chroma_detail(f) for f in pick]) < SUBSAMPLED_CHROMA_DETAIL)
 
 
-def _learned(frames: NDArray[np.uint8], learn: Callable[[NDArray[np.uint8]], BackgroundModel]) -> BackgroundModel:
-    """``learn(frames)``, and for a noisy camera again on smoothed frames (``smooth_sigma`` set);
-    ``subsampled`` measured."""
+def _learned(frames: NDArray[np.uint8], learn: Callable[[NDArray[np.uint8]], BackgroundModel],
+             noise: NDArray[np.floating] | None = None) -> BackgroundModel:
+    """``learn(frames)``, and for a noisy camera (``noise``, default the model's brightness spread)
+    again on smoothed frames (``smooth_sigma`` set); ``subsampled`` measured."""
     model = replace(learn(frames), subsampled=chroma_subsampled(frames))
-    sigma = smoothing_for(model.bright_std)
+    sigma = smoothing_for(model.bright_std if noise is None else noise)
     if sigma <= 0:
         return model
     return replace(learn(smoothed(frames, sigma)), smooth_sigma=sigma, subsampled=model.subsampled)
@@ -272,7 +273,11 @@ def learn_background_robust(frames: NDArray[np.uint8], chroma_std_floor: float =
         return _model(c_med, 1.4826 * c_mad, b_med, 1.4826 * b_mad, int(g.shape[0]), chroma_std_floor,
                       bright_std_floor)
 
-    return _learned(f, learn)
+    # the camera's noise from frame-to-frame differences: the spread over seconds also holds the
+    # exposure drift, which would take a quiet camera for a noisy one (and smooth its frames)
+    _, b = _chroma_bright(f)
+    noise = 1.4826 * np.median(np.abs(np.diff(b, axis=0)), axis=0) / np.sqrt(2.0)
+    return _learned(f, learn, noise)
 
 
 def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],

@@ -143,6 +143,8 @@ class LiveState:
         lines = [f"**tracker `{sid}`** " + ("(silent)" if now - v.last_rx > SILENT_AFTER_S else
                                             (st.state.value if st else "running"))]
         if st is not None:
+            if st.advice:
+                lines.append(f"⚠ {st.advice}")
             lines.append(f"fps {st.fps:.1f} · frames {st.frames} · {st.estimator or ''} · body {st.body_model or '-'}")
             if st.stage_ms:
                 lines.append("ms: " + ", ".join(f"{k} {x:.1f}" for k, x in sorted(st.stage_ms.items())))

@@ -39,6 +39,9 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     add_tracker_args(ep, subject=True)
     ep.add_argument("--frames", type=int, metavar="N", help="evaluate at most N frames")
     ep.add_argument("--seed", type=int, default=0, help="scene seed (subject, room, lighting, noise)")
+    ep.add_argument("--empty-prefix", type=int, default=12, metavar="N",
+                    help="frames of the empty room before the person appears (default: 12); 0: the person is in "
+                         "view from the first frame, as when a user starts the tracker standing in front of it")
     ep.add_argument("--force-loss-every", type=float, default=0.0, metavar="S",
                     help="force a tracking loss every S seconds and measure re-acquisition (default: never)")
     ep.add_argument("--jpeg-quality", type=int, metavar="Q",
@@ -61,6 +64,8 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     tracker = tracker_options(args, subject=True)
     if args.jpeg_quality is not None and not 1 <= args.jpeg_quality <= 100:
         raise UsageError("--jpeg-quality must be in 1..100")
+    if not 0 <= args.empty_prefix <= 10_000:
+        raise UsageError("--empty-prefix must be in 0..10000")
     if args.h264_crf is not None and not 0 <= args.h264_crf <= 51:
         raise UsageError("--h264-crf must be in 0..51")
     from tracker_service.scene.variation import parse_axes
@@ -80,7 +85,7 @@ def options_from_args(args: argparse.Namespace) -> EvalCommandOptions:
     except ValueError as e:
         raise UsageError(f"--vary: {e}") from None
     return EvalCommandOptions(motion=args.bvh or args.script, tracker=tracker, json=args.json,
-                              evaluation=EvalOptions(frames=args.frames, seed=args.seed,
+                              evaluation=EvalOptions(frames=args.frames, seed=args.seed, empty_prefix=args.empty_prefix,
                                                      force_loss_every_s=args.force_loss_every,
                                                      jpeg_quality=args.jpeg_quality, h264_crf=args.h264_crf,
                                                      variation=variation, input_size=size),

@@ -1,0 +1,83 @@
+"""Ghost detection: a silhouette on the frame's edges is a person; one on the background model's
+edges is the hole a person learned into the background left."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tracker_service.silhouette.ghost import GhostParams, across_minus_along, ghost_fraction
+
+
+def _room(rng: np.random.Generator, texture: float) -> np.ndarray:
+    """A (240, 320) brightness image: a smooth gradient plus smoothed random texture of amplitude ``texture``."""
+    base = np.linspace(90, 150, 320, dtype=np.float32)[None, :].repeat(240, axis=0)
+    noise = cv2.GaussianBlur(rng.normal(0, 1, (240, 320)).astype(np.float32), (0, 0), 1.2)
+    return np.clip(base + texture * noise / noise.std(), 0, 255).astype(np.float32)
+
+
+def _person(cx: int) -> np.ndarray:
+    mask = np.zeros((240, 320), np.uint8)
+    cv2.ellipse(mask, (cx, 130), (28, 80), 0, 0, 360, 1, -1)
+    return mask.astype(bool)
+
+
+def _bgr(bright: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    img = bright + rng.normal(0, 2.0, bright.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)[..., None].repeat(3, axis=2)
+
+
+@pytest.mark.parametrize("texture", [0.0, 25.0])
+def test_a_person_in_an_empty_room_model_is_no_ghost(texture: float, rng: np.random.Generator) -> None:
+    room = _room(rng, texture)
+    person = _person(160)
+    frame = room.copy()
+    frame[person] = 40.0  # dark clothes against the room
+    assert ghost_fraction(room, _bgr(frame, rng), person) < 0.1
+
+
+@pytest.mark.parametrize("texture", [0.0, 25.0])
+def test_the_hole_left_by_a_person_learned_into_the_background_is_a_ghost(texture: float,
+                                                                         rng: np.random.Generator) -> None:
+    room = _room(rng, texture)
+    was = _person(120)
+    model = room.copy()
+    model[was] = 40.0  # the background was learned with the person standing there
+    now = _person(220)
+    frame = room.copy()
+    frame[now] = 40.0  # they moved: the room shows where they were
+    ghost_only = ghost_fraction(model, _bgr(frame, rng), was)
+    both = ghost_fraction(model, _bgr(frame, rng), was | now)
+    assert ghost_only > 0.9
+    assert 0.3 < both < 0.7  # half of the outline is the ghost's, half the person's
+
+
+def test_a_small_or_empty_silhouette_is_not_judged(rng: np.random.Generator) -> None:
+    room = _room(rng, 10.0)
+    tiny = np.zeros((240, 320), bool)
+    tiny[100:103, 100:103] = True
+    assert ghost_fraction(room, _bgr(room, rng), tiny) == 0.0
+    assert ghost_fraction(room, _bgr(room, rng), np.zeros((240, 320), bool)) == 0.0
+
+
+def test_texture_cancels_and_an_edge_along_the_outline_counts(rng: np.random.Generator) -> None:
+    """The gradient across the outline minus along it: about 0 for isotropic texture, large for the
+    outline's own edge."""
+    person = _person(160).astype(np.uint8)
+    outline = person > cv2.erode(person, np.ones((3, 3), np.uint8))
+    mx = cv2.Sobel(cv2.GaussianBlur(person.astype(np.float32), (0, 0), 1.5), cv2.CV_32F, 1, 0, ksize=3)
+    my = cv2.Sobel(cv2.GaussianBlur(person.astype(np.float32), (0, 0), 1.5), cv2.CV_32F, 0, 1, ksize=3)
+    n = np.hypot(mx[outline], my[outline]) + 1e-9
+    nx, ny = mx[outline] / n, my[outline] / n
+    edge = np.where(person > 0, 40.0, 140.0).astype(np.float32)
+    texture = _room(rng, 40.0) - _room(np.random.default_rng(0), 0.0)
+    e_edge = across_minus_along(edge, outline, nx, ny, 1.0)
+    e_texture = across_minus_along(texture, outline, nx, ny, 1.0)
+    assert e_edge.shape == e_texture.shape == (int(outline.sum()),)
+    assert np.median(e_edge) > 100 and abs(float(e_texture.mean())) < 0.15 * float(e_edge.mean())
+
+
+def test_params_are_ordered() -> None:
+    p = GhostParams()
+    assert 0 < p.threshold_relearned <= p.threshold_start <= p.threshold < 1 and p.frames >= 1

@@ -120,7 +120,8 @@ class _Run:
         return encode(TrackerStatus(
             tracker_id=self.tid, state=st, ts=time.time(), uptime_s=time.monotonic() - self.t_start, fps=c.fps(),
             frames=c.values["published"], counters=dict(c.values), stage_ms=c.stage_means(),
-            estimator=self.config.estimator, body_model=self.state.body.name, advice=advice(self.state)))
+            estimator=self.config.estimator, body_model=self.state.body.name, advice=advice(self.state),
+            camera=self.state.camera_estimate.as_dict() if self.state.camera_estimate is not None else {}))
 
     def step(self, ts: float, frame: Any, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher) -> FrameResult | None:
         """Process one frame and publish its pose (and the body when it changed); None for a frame

@@ -391,6 +391,7 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "reinitialisations": int(state.reinits),
         "withheld": dict(sorted(tally.withheld.items())),
         "background_relearns": int(state.relearns),
+        "camera_estimate": state.camera_estimate.as_dict() if state.camera_estimate is not None else {},
         "empty_prefix": options.empty_prefix,
         "poses_sha256": tally.digest.hexdigest(),
         "jpeg_quality": options.jpeg_quality,

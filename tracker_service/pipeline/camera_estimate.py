@@ -115,8 +115,25 @@ def _up_in_camera(tilt: NDArray[np.float64], roll: NDArray[np.float64]) -> NDArr
     return np.stack(np.broadcast_arrays(c * ux - s * uy, s * ux + c * uy, uz), axis=-1)
 
 
+def _cost(segments: NDArray[np.float64], camera: Camera, tilts: NDArray[np.float64], rolls: NDArray[np.float64],
+          cutoff: float) -> NDArray[np.float64]:
+    """The truncated, length-weighted squared angles of ``segments`` to the vertical vanishing point of
+    every ``(tilt, roll)`` (radians): (T, R)."""
+    up = _up_in_camera(tilts[:, None], rolls[None, :])  # (T, R, 3)
+    vx = camera.fx * up[..., 0] + camera.cx * up[..., 2]  # K @ up, homogeneous
+    vy = camera.fy * up[..., 1] + camera.cy * up[..., 2]
+    vz = up[..., 2]
+    mx, my = (segments[:, 0] + segments[:, 2]) / 2.0, (segments[:, 1] + segments[:, 3]) / 2.0
+    sx, sy = segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]
+    # direction from each midpoint to the vanishing point (valid at infinity too): (T, R, N)
+    dx = vx[..., None] - mx * vz[..., None]
+    dy = vy[..., None] - my * vz[..., None]
+    angle = np.arctan2(np.abs(dx * sy - dy * sx), np.abs(dx * sx + dy * sy))  # 0..pi/2: lines
+    return np.asarray((np.minimum(angle, cutoff) ** 2 * np.hypot(sx, sy)).sum(axis=-1), np.float64)
+
+
 def level_tilt(segments: NDArray[np.float64], camera: Camera, *, tilt_range_deg: float = 35.0,
-               roll_range_deg: float = 10.0, step_deg: float = 0.25, cutoff_deg: float = 2.0,
+               roll_range_deg: float = 10.0, step_deg: float = 0.1, cutoff_deg: float = 2.0,
                min_segments: int = 4) -> tuple[float, float]:
     """The camera's tilt and roll from vertical edges of the room (module docstring).
 
@@ -127,7 +144,8 @@ def level_tilt(segments: NDArray[np.float64], camera: Camera, *, tilt_range_deg:
     camera : Camera
         Its intrinsics are used; its pose is not.
     tilt_range_deg, roll_range_deg, step_deg : float
-        The grid searched.
+        The grid searched: 1-degree steps over the ranges, then ``step_deg`` within 1.5 degrees of
+        the best.
     cutoff_deg : float
         Angle beyond which a segment is not a vertical of the room (its cost stops growing).
     min_segments : int
@@ -139,25 +157,16 @@ def level_tilt(segments: NDArray[np.float64], camera: Camera, *, tilt_range_deg:
     """
     if len(segments) < min_segments:
         return float("nan"), float("nan")
-    tilts = np.radians(np.arange(-tilt_range_deg, tilt_range_deg + 1e-9, step_deg))
-    rolls = np.radians(np.arange(-roll_range_deg, roll_range_deg + 1e-9, step_deg))
-    up = _up_in_camera(tilts[:, None], rolls[None, :])  # (T, R, 3)
-    vx = camera.fx * up[..., 0] + camera.cx * up[..., 2]  # K @ up, homogeneous
-    vy = camera.fy * up[..., 1] + camera.cy * up[..., 2]
-    vz = up[..., 2]
-    mx, my = (segments[:, 0] + segments[:, 2]) / 2.0, (segments[:, 1] + segments[:, 3]) / 2.0
-    sx, sy = segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]
-    length = np.hypot(sx, sy)
-    # direction from each midpoint to the vanishing point (valid at infinity too): (T, R, N)
-    dx = vx[..., None] - mx * vz[..., None]
-    dy = vy[..., None] - my * vz[..., None]
-    cross = np.abs(dx * sy - dy * sx)
-    dot = np.abs(dx * sx + dy * sy)
-    angle = np.arctan2(cross, dot)  # 0..pi/2: lines, not directions
     cut = math.radians(cutoff_deg)
-    cost = (np.minimum(angle, cut) ** 2 * length).sum(axis=-1)
+    tilts = np.arange(-tilt_range_deg, tilt_range_deg + 1e-9, 1.0)
+    rolls = np.arange(-roll_range_deg, roll_range_deg + 1e-9, 1.0)
+    cost = _cost(segments, camera, np.radians(tilts), np.radians(rolls), cut)
     i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
-    return float(np.degrees(tilts[i])), float(np.degrees(rolls[j]))
+    fine = np.arange(-1.5, 1.5 + 1e-9, step_deg)
+    tilts, rolls = tilts[i] + fine, rolls[j] + fine
+    cost = _cost(segments, camera, np.radians(tilts), np.radians(rolls), cut)
+    i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    return float(tilts[i]), float(rolls[j])
 
 
 def camera_height(feet_row: float, head_row: float, camera: Camera, tilt_deg: float,

@@ -111,6 +111,11 @@ class TrackerConfig:
         the background model's edges rather than the frame's is a person learned into the
         background; its pose is withheld, and after ``ghost.frames`` such frames in a row the
         background is learned again, robustly; None: off.
+    estimate_camera : bool
+        Measure the camera's tilt and roll from the room's vertical edges when the background is
+        first learned, and its height from the person while initialising
+        (:mod:`tracker_service.pipeline.camera_estimate`); logged (a warning when it is clearly not
+        the given camera) and kept in ``TrackerState.camera_estimate``.
     """
 
     distance: Distance = "nwxor"
@@ -143,6 +148,7 @@ class TrackerConfig:
     relearn_frames: int = 21
     relearn_every: int = 4
     ghost: GhostParams | None = field(default_factory=GhostParams)
+    estimate_camera: bool = True
 
     def __post_init__(self) -> None:
         if self.body is not None and self.body_candidates:

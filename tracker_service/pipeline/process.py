@@ -36,6 +36,14 @@ from tracker_service.estimators import make_estimator
 from tracker_service.estimators.base import Estimate
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterState, TreeFilter
 from tracker_service.pipeline.body_selection import BodyChoice, candidates_near, measured_stature, score_bodies
+from tracker_service.pipeline.camera_estimate import (
+    ASSUMED_STATURE_M,
+    CameraEstimate,
+    differs,
+    room_estimate,
+    silhouette_rows,
+    with_height,
+)
 from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.observe import FrameEvidence, observe
 from tracker_service.pipeline.publish import Transition, publish
@@ -137,7 +145,7 @@ def force_loss(state: TrackerState, db: FilterDB, db_body: Body, camera: Camera,
     return replace(state, filter=estimator.init(getattr(state.filter, "placement", None)))
 
 
-def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig) -> TrackerState:
+def _learn(state: TrackerState, frame: NDArray[np.uint8], camera: Camera, config: TrackerConfig) -> TrackerState:
     """The learning phase: collect empty-room frames, then learn the background (§2.2). When
     re-learning (a person was learned into the background), every ``relearn_every``-th frame over a
     few seconds, learned robustly (per-pixel medians: the room behind a moving person)."""
@@ -150,8 +158,12 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], config: TrackerConfig)
         return replace(state, learning=frames, frames_in_phase=n)
     frames = (*state.learning, frame)
     if len(frames) >= max(config.background_frames, 2):
-        return replace(state, phase="waiting", background=learn_background(np.stack(frames)), learning=(),
-                       supported=0)
+        background = learn_background(np.stack(frames))
+        estimate = state.camera_estimate
+        if config.estimate_camera and estimate is None:  # the room's verticals: the camera's tilt and roll
+            estimate = room_estimate(background.bright_mean, camera)
+        return replace(state, phase="waiting", background=background, learning=(), supported=0,
+                       camera_estimate=estimate)
     return replace(state, learning=frames)
 
 
@@ -203,6 +215,23 @@ def _ghost(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_
     return replace(state, ghost_run=run, ghost_recent=recent), g
 
 
+def _report_camera(estimate: CameraEstimate, camera: Camera) -> None:
+    """Log the camera's placement measured from its frames; a warning, with the options to pass, when
+    it is clearly not the camera the tracker was given."""
+    if not np.isfinite(estimate.tilt_deg):
+        log.info("too few vertical edges in the room (%d) to measure the camera's tilt", estimate.segments)
+        return
+    log.info("camera measured from its frames: tilt %.1f deg, roll %.1f deg, height %.2f m for a person of "
+             "%.2f m (%d vertical edges)", estimate.tilt_deg, estimate.roll_deg, estimate.height_m,
+             estimate.stature_m, estimate.segments)
+    if differs(estimate, camera):
+        height = f"--camera-height {estimate.height_m:.2f} " if np.isfinite(estimate.height_m) else ""
+        log.warning("the camera seems not to be where the tracker assumes it (%s): measured tilt %.1f deg, roll "
+                    "%.1f deg, height %.2f m (for a person of %.2f m); for better tracking run with %s--camera-tilt "
+                    "%.1f, or give a calibration file with --camera", camera.summary(), estimate.tilt_deg,
+                    estimate.roll_deg, estimate.height_m, estimate.stature_m, height, estimate.tilt_deg)
+
+
 def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_], ev: FrameEvidence,
                 est: Estimate, pose: NDArray[np.float64], fstate: Any, db: FilterDB, db_body: Body,
                 camera: Camera, config: TrackerConfig, estimator: Any) -> Transition:
@@ -237,6 +266,10 @@ def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.
         sel_feats = preprocess(mask, "xor")  # symmetric: nwXOR's cheap contour misses favour small bodies
         sel_params = replace(config.filter, sigma=(0.02, 0.015, 0.012))
         scores = score_bodies(scores, sel_feats, raw, db, db_body, camera, sel_params, cands)
+    init_rows = state.init_rows
+    if phase == "initialising" and (rows := silhouette_rows(mask)) is not None:
+        init_rows = (*init_rows, rows)
+    camera_estimate = state.camera_estimate
     if phase == "initialising" and frames_in_phase >= config.init_frames:
         if config.body_candidates:
             choice: BodyChoice = BodyChoice.from_scores(  # a model the user named is used as it is
@@ -255,13 +288,17 @@ def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.
                 fstate = estimator.init(est.placement * np.array([1.0, 1.0, scale / state.body_scale]))
         phase = "tracking"
         frames_in_phase = 0
+        if camera_estimate is not None and not np.isfinite(camera_estimate.height_m):
+            stature = config.body.height if config.body is not None else ASSUMED_STATURE_M
+            camera_estimate = with_height(camera_estimate, list(init_rows), camera, stature)
+            _report_camera(camera_estimate, camera)
         if config.shoes is not None and shoe_samples:
             shoes = learn_shoes(np.concatenate([a for a, _ in shoe_samples]),
                                 np.concatenate([b for _, b in shoe_samples]), config.shoes)
         shoe_samples = ()
     nxt = replace(state, phase=phase, filter=fstate, body=body, body_scale=scale, body_scores=scores,
                   statures=statures, frames_in_phase=frames_in_phase, shoe_samples=shoe_samples, shoes=shoes,
-                  base_body=base_body)
+                  base_body=base_body, init_rows=init_rows, camera_estimate=camera_estimate)
     return Transition(nxt, body_changed, restarted)
 
 
@@ -295,7 +332,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     state = replace(state, clock=clock)
     empty_vis = np.zeros(N_PARTS, np.float32)
     if state.phase == "learning":
-        state = _learn(state, frame, config)
+        state = _learn(state, frame, camera, config)
         ms = {"background": (time.perf_counter() - t0) * 1e3}
         return state, FrameResult(state.phase, None, None, None, empty_vis, 0.0, float("nan"), (), ms)
     assert state.background is not None
@@ -318,7 +355,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
         state = replace(state, phase="initialising", frames_in_phase=0, filter=estimator.init(), body_scores={},
                         statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
-                        reading=None)
+                        reading=None, init_rows=())
     if not mask.any():  # the person left: wait for them to come back to the centre
         state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)

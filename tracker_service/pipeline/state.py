@@ -12,6 +12,7 @@ from protocol.skeleton import Body
 from tracker_service.cues.reading_filter import ReadingState
 from tracker_service.cues.shoes import ShoeModel
 from tracker_service.estimators.tree_filter.filter import initial_state
+from tracker_service.pipeline.camera_estimate import CameraEstimate
 from tracker_service.pipeline.smoothing import SmoothState
 from tracker_service.silhouette.background import BackgroundModel
 
@@ -48,6 +49,8 @@ class TrackerState:
     supported: int = 0  # poses published since the background was learned
     ghost_run: int = 0  # consecutive frames whose silhouette was a ghost (silhouette/ghost.py)
     ghost_recent: tuple[float, ...] = ()  # the last frames' ghost fractions
+    camera_estimate: CameraEstimate | None = None  # the camera's placement measured from its frames
+    init_rows: tuple[tuple[float, float], ...] = ()  # the silhouette's (feet, head) rows while initialising
     estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
 
 

@@ -37,7 +37,7 @@ def test_tilt_and_roll_from_the_rooms_verticals(height: float, tilt: float, roll
     cam = _rolled(placed_camera(height_m=height, tilt_deg=tilt), roll)
     assert cam.tilt_deg == pytest.approx(tilt, abs=1e-6) and cam.roll_deg == pytest.approx(roll, abs=1e-6)
     t, r = level_tilt(_room_verticals(cam, rng), cam)
-    assert t == pytest.approx(tilt, abs=0.6) and r == pytest.approx(roll, abs=0.6)
+    assert t == pytest.approx(tilt, abs=1.0) and r == pytest.approx(roll, abs=1.0)  # 0.3 px endpoint noise
 
 
 def test_too_few_verticals_give_no_tilt() -> None:
@@ -81,3 +81,33 @@ def test_rows_height_and_the_difference_from_the_working_camera() -> None:
     assert not differs(est, cam)
     assert differs(est, placed_camera())  # the default camera: 1.2 m, level
     assert with_height(CameraEstimate(), [rows], cam) == CameraEstimate()  # no tilt, no height
+
+
+@pytest.mark.slow
+def test_the_tracker_measures_a_camera_it_was_not_told_about(small_db, mocap_dir, caplog) -> None:  # type: ignore[no-untyped-def]
+    """The scene filmed 1.8 m high, 15 degrees down; the tracker assumes its default camera (1.2 m,
+    level): it measures the tilt from the room and warns once initialised."""
+    import logging
+
+    from protocol.formats.load import load_motion
+    from tracker_service.pipeline.process import TrackerConfig, new_state, process_frame
+    from tracker_service.scene.synthetic import SceneConfig, SyntheticScene
+    from tracker_service.templates.database import load_db
+
+    loaded = load_db(small_db[-1])
+    motion = load_motion(mocap_dir / "bandai" / "dataset-2_raise-up-both-hands_normal_001.bvh", fps=30.0)
+    scene = SyntheticScene(motion, seed=1, config=SceneConfig(fps=30.0, empty_prefix=10,
+                                                             camera=placed_camera(height_m=1.8, tilt_deg=15.0)))
+    cfg = TrackerConfig(distance="xor", background_frames=10)
+    state = new_state(loaded.body)
+    try:
+        with caplog.at_level(logging.INFO, logger="tracker_service.pipeline.process"):
+            for i in range(24):
+                fr = scene.frame(i)
+                state, _ = process_frame(state, fr.image, loaded.db, loaded.body, loaded.camera, cfg, fr.timestamp)
+    finally:
+        scene.close()
+    est = state.camera_estimate
+    assert est is not None and est.tilt_deg == pytest.approx(15.0, abs=3.0) and est.segments >= 4
+    assert state.phase == "tracking" and est.height_m == pytest.approx(1.8, abs=0.3)  # stature 1.70 assumed
+    assert any("camera seems not to be where" in r.getMessage() for r in caplog.records)

@@ -1,0 +1,211 @@
+"""A soak under hostile input: a replayed tracker, the game and the cloth client on one router for
+minutes, with bursts of malformed and absurd messages on the tracker's keys; memory, rates and
+recovery measured from outside.
+
+Usage::
+
+    .venv/bin/python bench/bench_soak.py [--minutes 10] [--burst-every 60] [--burst-s 5] [--out DIR]
+
+Processes (the product's own commands, all clients of one ``mocap-router`` on loopback):
+``mocap-tracker replay --loop`` of the game's winning round (``game_client/scripts/round_win.toml``),
+``mocap-game run`` and ``mocap-cloth run --publish-mesh`` following it, and every ``--burst-every``
+seconds ``python -m protocol fuzz`` for ``--burst-s`` seconds at 100 payloads a second, on the pose
+key and the body key in turn. The bench subscribes to the game's state and events and the cloth's
+mesh, counts them per second and samples every process's resident memory (``VmRSS``) every 10 s.
+
+Reported: per process the memory after the first minute and at the end and its slope (MB per
+minute, least squares from the first minute on); the game's state rate and the cloth's mesh rate
+outside bursts, their lowest one-second rate during bursts and the slowest return to 90 % of the
+usual rate after a burst ends; the game's events inside and outside bursts (a fake gesture shows as
+an event rate that rises in bursts); every process still running at the end. Writes ``soak.md`` and
+``soak.json`` to ``--out`` (default ``out/bench_soak``). Not a test: it takes ``--minutes``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+from _host import bench_meta  # bench/ is the script's folder
+
+from protocol.net.session import build_config, free_tcp_endpoint, open_session, undeclare_quietly
+from protocol.wire.codec import ProtocolError, decode
+from protocol.wire.game_messages import GameEvent, GameEventKind
+from protocol.wire.keys import body_key, cloth_mesh_key, game_event_key, game_state_key, pose_key
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+ROUND = ROOT / "game_client" / "scripts" / "round_win.toml"
+TID = "soak"
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def _slope(t_min: list[float], mb: list[float]) -> float:
+    t, m = np.asarray(t_min), np.asarray(mb)
+    keep = (t >= 1.0) & np.isfinite(m)
+    if keep.sum() < 3:
+        return float("nan")
+    return float(np.polyfit(t[keep], m[keep], 1)[0])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--burst-every", type=float, default=60.0, metavar="S")
+    ap.add_argument("--burst-s", type=float, default=5.0, metavar="S")
+    ap.add_argument("--out", default=str(ROOT / "out" / "bench_soak"))
+    args = ap.parse_args()
+    duration = args.minutes * 60.0
+    ep = free_tcp_endpoint()
+    net = ["--mode", "client", "--connect", ep]
+    t0 = time.time()
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    logs = Path(args.out)
+    logs.mkdir(parents=True, exist_ok=True)
+
+    def start(name: str, cmd: list[str]) -> None:
+        with open(logs / f"{name}.log", "wb") as err:
+            procs[name] = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=err)
+
+    start("router", [str(BIN / "mocap-router"), "--listen", ep, "-q"])
+    time.sleep(1.0)
+    run_s = str(int(duration + 30))
+    start("replay", [str(BIN / "mocap-tracker"), "replay", "--script", str(ROUND), "--loop", "--id", TID, "-q", *net])
+    start("game", [str(BIN / "mocap-game"), "run", "--tracker", TID, "--duration", run_s, "--json", "-q", *net])
+    start("cloth", [str(BIN / "mocap-cloth"), "run", "--id", TID, "--publish-mesh", "--duration", run_s, "--json",
+                    "--log-level", "WARNING", *net])
+    counts: dict[str, Counter[int]] = {"state": Counter(), "mesh": Counter(), "event": Counter()}
+    events: list[tuple[float, str]] = []
+    lock = threading.Lock()
+    t_start = time.monotonic()
+
+    def on(kind: str) -> Any:
+        def cb(sample: zenoh.Sample) -> None:
+            s = int(time.monotonic() - t_start)
+            with lock:
+                counts[kind][s] += 1
+                if kind == "event":
+                    try:
+                        ev = decode(sample.payload.to_bytes(), GameEvent)
+                        name = ev.gesture if ev.kind == GameEventKind.GESTURE else ev.kind.value
+                    except ProtocolError:
+                        name = "undecodable"
+                    events.append((time.monotonic() - t_start, name))
+        return cb
+
+    bursts: list[tuple[float, float, str]] = []
+    rss: dict[str, list[float]] = {k: [] for k in procs}
+    rss_t: list[float] = []
+    subs = []
+    try:
+        with open_session(build_config(mode="client", connect=[ep])) as session:
+            subs = [session.declare_subscriber(game_state_key("default"), on("state")),
+                    session.declare_subscriber(cloth_mesh_key(TID), on("mesh")),
+                    session.declare_subscriber(game_event_key("default"), on("event"))]
+            next_burst, next_rss, n_burst = args.burst_every, 0.0, 0
+            while (now := time.monotonic() - t_start) < duration:
+                if now >= next_rss:
+                    rss_t.append(now / 60.0)
+                    for k, p in procs.items():
+                        rss[k].append(_rss_mb(p.pid) if p.poll() is None else float("nan"))
+                    next_rss += 10.0
+                if now >= next_burst and now + args.burst_s < duration - 5.0:
+                    key = pose_key(TID) if n_burst % 2 == 0 else body_key(TID)
+                    cmd = [sys.executable, "-m", "protocol", "fuzz", "--key", key, "--rate", "100", "--duration",
+                           str(args.burst_s), "--seed", str(n_burst), "-q", *net]
+                    b0 = time.monotonic() - t_start
+                    subprocess.run(cmd, cwd=ROOT, capture_output=True, check=False, timeout=args.burst_s + 60)
+                    bursts.append((b0, time.monotonic() - t_start, key.rsplit("/", 1)[-1]))
+                    next_burst += args.burst_every
+                    n_burst += 1
+                time.sleep(0.2)
+            for sub in subs:
+                undeclare_quietly(sub)
+            subs = []
+    finally:
+        alive = {k: p.poll() is None for k, p in procs.items()}
+        summaries: dict[str, Any] = {}
+        for k in ("game", "cloth", "replay", "router"):
+            p = procs[k]
+            if p.poll() is None:
+                p.terminate()
+            try:
+                out, _ = p.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                out, _ = p.communicate()
+            if k in ("game", "cloth") and out.strip():
+                try:
+                    summaries[k] = json.loads(out.decode().strip().splitlines()[-1])
+                except (ValueError, IndexError):
+                    summaries[k] = {"unparsed": out.decode()[-300:]}
+    secs = int(duration)
+
+    def in_burst(s: float, pad: float = 0.0) -> bool:
+        return any(b0 - pad <= s < b1 + pad for b0, b1, _ in bursts)
+
+    report: dict[str, Any] = {"alive_at_end": alive, "bursts": len(bursts), "summaries": summaries}
+    for kind in ("state", "mesh"):
+        rate = np.array([counts[kind][s] for s in range(secs)], np.float64)
+        quiet = np.array([not in_burst(s, 2.0) for s in range(secs)]) & (np.arange(secs) >= 30)
+        usual = float(np.median(rate[quiet])) if quiet.any() else float("nan")
+        during = [rate[int(b0):int(b1) + 1].min() for b0, b1, _ in bursts if int(b1) + 1 <= secs]
+        back = []
+        for _, b1, _ in bursts:
+            s = int(np.ceil(b1))
+            while s < secs and rate[s] < 0.9 * usual:
+                s += 1
+            back.append(s - b1)
+        report[kind] = {"usual_hz": usual, "lowest_in_bursts_hz": float(min(during)) if during else None,
+                        "slowest_recovery_s": round(float(max(back)), 2) if back else None}
+    ev_in = sum(1 for t, _ in events if in_burst(t))
+    burst_s = sum(b1 - b0 for b0, b1, _ in bursts)
+    report["events"] = {"outside_bursts": dict(Counter(n for t, n in events if not in_burst(t))),
+                        "in_bursts": dict(Counter(n for t, n in events if in_burst(t)))}
+    quiet_min = max(duration - burst_s, 1.0) / 60.0
+    report["events_per_min"] = {"outside_bursts": round((len(events) - ev_in) / quiet_min, 2),
+                                "in_bursts": round(60.0 * ev_in / max(burst_s, 1e-9), 2) if bursts else None}
+    report["rss_mb"] = {k: {"after_1_min": round(float(np.interp(1.0, rss_t, v)), 1),
+                            "end": round(float(v[-1]), 1), "slope_mb_per_min": round(_slope(rss_t, v), 3)}
+                        for k, v in rss.items() if v}
+    lines = ["| process | memory after 1 min | at the end | slope MB/min | running at the end |",
+             "|---|---|---|---|---|"]
+    for k, v in report["rss_mb"].items():
+        lines.append(f"| {k} | {v['after_1_min']} MB | {v['end']} MB | {v['slope_mb_per_min']:+.3f} | "
+                     f"{'yes' if alive[k] else 'NO'} |")
+    lines += ["", "| stream | usual rate | lowest 1 s during bursts | slowest recovery after a burst |",
+              "|---|---|---|---|"]
+    for kind, name in (("state", "game state"), ("mesh", "cloth mesh")):
+        r = report[kind]
+        lines.append(f"| {name} | {r['usual_hz']:.0f} Hz | {r['lowest_in_bursts_hz']} Hz | "
+                     f"{r['slowest_recovery_s']} s |")
+    lines += ["", f"{len(bursts)} bursts; game events per minute outside bursts "
+              f"{report['events_per_min']['outside_bursts']}, in bursts {report['events_per_min']['in_bursts']}"]
+    meta = bench_meta("bench_soak.py", t0, minutes=args.minutes, burst_every_s=args.burst_every,
+                      burst_s=args.burst_s)
+    (logs / "soak.json").write_text(json.dumps({"meta": meta, **report}, indent=1, default=str))
+    (logs / "soak.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0 if all(alive.values()) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -37,6 +37,7 @@ import numpy as np
 import zenoh
 from _host import bench_meta  # bench/ is the script's folder
 
+from protocol.formats.load import load_motion
 from protocol.net.session import build_config, free_tcp_endpoint, open_session, undeclare_quietly
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.game_messages import GameEvent, GameEventKind
@@ -183,6 +184,8 @@ def main() -> int:
     quiet_min = max(duration - burst_s, 1.0) / 60.0
     report["events_per_min"] = {"outside_bursts": round((len(events) - ev_in) / quiet_min, 2),
                                 "in_bursts": round(60.0 * ev_in / max(burst_s, 1e-9), 2) if bursts else None}
+    report["rss_series_mb"] = {"t_min": [round(t, 3) for t in rss_t],
+                               **{k: [round(x, 1) for x in v] for k, v in rss.items()}}
     report["rss_mb"] = {k: {"after_1_min": round(float(np.interp(1.0, rss_t, v)), 1),
                             "end": round(float(v[-1]), 1), "slope_mb_per_min": round(_slope(rss_t, v), 3)}
                         for k, v in rss.items() if v}
@@ -197,6 +200,13 @@ def main() -> int:
         r = report[kind]
         lines.append(f"| {name} | {r['usual_hz']:.0f} Hz | {r['lowest_in_bursts_hz']} Hz | "
                      f"{r['slowest_recovery_s']} s |")
+    loop_s = load_motion(ROUND, fps=30.0).n_frames / 30.0
+    loops = duration / loop_s
+    per_loop = {k: round(v / loops, 2) for k, v in sorted(Counter(n for _, n in events).items())}
+    report["events_per_loop"] = per_loop
+    lines += ["", f"game events per loop of the {loop_s:.1f} s round script ({loops:.1f} loops; the script "
+              "performs transform, crouch, strike, side_step and fire_ring once, and the loop's jump back to "
+              "the start reads as one more side_step): " + ", ".join(f"{k} {v}" for k, v in per_loop.items())]
     lines += ["", f"{len(bursts)} bursts; game events per minute outside bursts "
               f"{report['events_per_min']['outside_bursts']}, in bursts {report['events_per_min']['in_bursts']}"]
     meta = bench_meta("bench_soak.py", t0, minutes=args.minutes, burst_every_s=args.burst_every,

@@ -23,18 +23,18 @@ from types import FrameType
 
 __all__ = ["default_sigterm", "main", "single_threaded_blas"]
 
-#: Environment variables that set the BLAS libraries' thread counts.
-_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+#: Environment variables that set the BLAS libraries' and OpenCV's thread counts.
+_BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
 #: Batch commands that may use every core (the per-frame ones run BLAS on one thread).
 _BATCH_COMMANDS = frozenset({"build-db", "train-appearance"})
 
 
 def single_threaded_blas() -> None:
-    """Run numpy's matrix products on one thread unless the user says otherwise (call before numpy
-    is imported). The tracker's budget is one core per frame, its products are small (the
-    appearance cue's network: 1.9 ms a frame on one thread, 4.4 ms with OpenBLAS's default two
-    threads on a 2-core machine), and a second BLAS thread only contends with the rest of the
-    pipeline and any other process."""
+    """Run numpy's matrix products and OpenCV's functions on one thread unless the user says
+    otherwise (call before numpy and cv2 are imported). The tracker's budget is one core per frame,
+    its products are small (the appearance cue's network in numpy: 1.9 ms a frame on one thread,
+    4.4 ms with OpenBLAS's default two threads on a 2-core machine), and a second thread only
+    contends with the rest of the pipeline and any other process."""
     import os
 
     for name in _BLAS_THREADS:

@@ -11,8 +11,9 @@ the Kinect body-part classifier was trained on synthetic renders of motion captu
 1. :func:`person_crop` cuts a square around the observed silhouette and scales it to the
    network's input (``S x S``): colour times the mask, and the mask itself, so that the room
    behind the person plays no part;
-2. :func:`predict_joints` runs the network (numpy, im2col + BLAS; the convolutions' batch norms
-   are folded into their weights when the network is exported) and returns, for every joint, its
+2. :func:`predict_joints` runs the network (OpenCV's DNN engine, :mod:`tracker_service.cues.appearance_engine`;
+   :func:`forward` is its numpy reference, im2col + BLAS; the convolutions' batch norms are folded
+   into their weights when the network is exported) and returns, for every joint, its
    position relative to the pelvis in the camera's axes divided by the person's height, with a
    variance per coordinate (the network was trained with a Gaussian negative log likelihood);
 3. :func:`joints_cost` scores template leaves: ``0.5 sum_j sum_c (mu_jc - x_jc)^2 / var_jc`` over
@@ -40,6 +41,7 @@ from numpy.typing import NDArray
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 from tracker_service.camera import Camera
 from tracker_service.cues._kernels import proposal_cost_kernel
+from tracker_service.cues.appearance_engine import AppearanceEngine
 from tracker_service.paths import out_dir
 
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
@@ -162,6 +164,15 @@ class AppearanceNet:
     def networks(self) -> tuple[tuple[Layer, ...], ...]:
         """Every network's layers, the first one's first."""
         return (self.layers, *self.members)
+
+    @property
+    def engine(self) -> AppearanceEngine:
+        """The networks compiled for OpenCV's DNN engine (made on first use, kept with the network)."""
+        eng = self.__dict__.get("_engine")
+        if eng is None:
+            eng = AppearanceEngine(self)
+            object.__setattr__(self, "_engine", eng)
+        return eng
 
 
 def ensemble(nets: Sequence[AppearanceNet]) -> AppearanceNet:
@@ -324,11 +335,10 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
     if c is None:
         return None
     x = net_input(*c)
-    views = np.stack([x, x[:, ::-1]]) if mirror else x[None]  # one batch: both views in each layer's product
+    views = np.stack([x, x[:, ::-1]]) if mirror else x[None]  # one batch: both views
     idx = np.asarray(MIRROR_JOINTS)
     readings = []
-    for k in range(len(net.networks)):
-        out = forward(net, views, k)
+    for out in net.engine.forward(views):
         readings.append(_read(out[0]))
         if mirror and (flipped := _read(out[1])) is not None:
             readings.append((flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]))

@@ -72,7 +72,7 @@ def test_rows_height_and_the_difference_from_the_working_camera() -> None:
     cam = placed_camera(height_m=1.6, tilt_deg=12.0)
     feet, head = cam.project(np.array([[0.0, 0.0, 0.0], [0.0, 1.70, 0.0]]))
     mask = np.zeros((240, 320), bool)
-    mask[int(round(head[1] + 0.5)): int(round(feet[1] - 0.5)), 150:170] = True
+    mask[round(float(head[1]) + 0.5): round(float(feet[1]) - 0.5), 150:170] = True
     rows = silhouette_rows(mask)
     assert rows is not None and abs(rows[0] - feet[1]) <= 1.0 and abs(rows[1] - head[1]) <= 1.0
     assert silhouette_rows(np.zeros((4, 4), bool)) is None

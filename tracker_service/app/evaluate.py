@@ -228,8 +228,10 @@ def _scene(motion: Motion, loaded: LoadedDatabase, options: EvalOptions) -> Synt
 
 def _eval_config(config: TrackerConfig, options: EvalOptions, scene: SyntheticScene) -> TrackerConfig:
     """``config`` with the scene's background frames and, if asked, the person's own measurements."""
-    # the background learned from as many frames as `run` learns it from (one path for both)
-    cfg = replace(config, background_frames=min(config.background_frames, options.empty_prefix))
+    # the background learned from the empty-room prefix, at most as many frames as `run` learns it from;
+    # with no prefix from the first frames, the person in them, as `run` does when started in view
+    cfg = config if options.empty_prefix == 0 else replace(
+        config, background_frames=min(config.background_frames, options.empty_prefix))
     if options.subject_measurements:
         known = subject_measurements(scene.subject.spec)
         if unknown := set(options.subject_measurements) - set(known):

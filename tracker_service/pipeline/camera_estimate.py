@@ -40,6 +40,8 @@ __all__ = ["ASSUMED_STATURE_M", "CameraEstimate", "camera_height", "differs", "l
 
 #: The stature taken for a person who did not give theirs.
 ASSUMED_STATURE_M = 1.70
+#: Camera heights a measurement may give; outside, the silhouette was not a whole person standing.
+PLAUSIBLE_HEIGHT_M = (0.2, 4.0)
 
 
 @dataclass(frozen=True)
@@ -253,6 +255,8 @@ def with_height(estimate: CameraEstimate, rows: list[tuple[float, float]], camer
         return estimate
     feet, head = np.median(np.asarray(rows, np.float64), axis=0)
     h = camera_height(float(feet), float(head), camera, estimate.tilt_deg, stature_m)
+    if not PLAUSIBLE_HEIGHT_M[0] <= h <= PLAUSIBLE_HEIGHT_M[1]:  # not a whole person standing (a partial silhouette)
+        h = float("nan")
     return CameraEstimate(estimate.tilt_deg, estimate.roll_deg, h, stature_m, estimate.segments)
 
 

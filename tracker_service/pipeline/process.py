@@ -24,6 +24,7 @@ import time
 from dataclasses import replace
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -154,7 +155,7 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], camera: Camera, config
         frames = (*state.learning, frame) if (n - 1) % config.relearn_every == 0 else state.learning
         if len(frames) >= max(config.relearn_frames, 3):
             return replace(state, phase="waiting", background=learn_background_robust(np.stack(frames)), learning=(),
-                           relearning=False, frames_in_phase=0, supported=0)
+                           relearning=False, frames_in_phase=0, supported=0, confirmed=False, pending=0)
         return replace(state, learning=frames, frames_in_phase=n)
     frames = (*state.learning, frame)
     if len(frames) >= max(config.background_frames, 2):
@@ -163,7 +164,7 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], camera: Camera, config
         if config.estimate_camera and estimate is None:  # the room's verticals: the camera's tilt and roll
             estimate = room_estimate(background.bright_mean, camera)
         return replace(state, phase="waiting", background=background, learning=(), supported=0,
-                       camera_estimate=estimate)
+                       camera_estimate=estimate, confirmed=False, pending=0)
     return replace(state, learning=frames)
 
 
@@ -337,9 +338,17 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         return state, FrameResult(state.phase, None, None, None, empty_vis, 0.0, float("nan"), (), ms)
     assert state.background is not None
     mask = subtract(state.background, frame, config.background)
-    if config.background_rate > 0:
-        fg = mask if mask.any() else np.zeros_like(mask)
-        state = replace(state, background=update_background(state.background, frame, fg, config.background_rate))
+    # the room follows the light while a person is tracked (5 poses published since the background was
+    # learned, the last one too), except where they are; before that nobody knows where a person is (one
+    # standing in a background learned with them would be absorbed, their ghost never seen)
+    if (config.background_rate > 0 and state.phase == "tracking" and state.supported >= 5 and state.withheld == 0
+            and mask.any()):
+        guard = config.background_guard_px
+        fg = mask if guard <= 0 else cv2.dilate(
+            mask.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (2 * guard + 1, 2 * guard + 1))).view(bool)
+        # alternate rows at twice the rate: the same time constant at half the cost
+        rate, rows = min(2.0 * config.background_rate, 0.5), (state.supported % 2, 2)
+        state = replace(state, background=update_background(state.background, frame, fg, rate, rows))
     ghost = 0.0
     if config.ghost is not None:
         state, ghost = _ghost(state, frame, mask, config)
@@ -382,11 +391,14 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     why = implausible(joints, camera)  # never a pose without grounds
     if why is None and est.confidence < config.min_confidence:
         why = "low-confidence"
+    pending = chosen.state.pending
+    if why is None and not chosen.state.confirmed and pending + 1 < config.confirm_frames:
+        why = "confirming"  # the first poses after the background was learned wait for a few good frames
     if why is not None:  # the publishing stages' memory as before them: a withheld pose leaves no trace
-        nxt = replace(chosen.state, reinits=nxt.reinits)
+        nxt = replace(chosen.state, reinits=nxt.reinits, pending=pending + 1 if why == "confirming" else 0)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, chosen.body_changed, why, ghost)
-    nxt = replace(nxt, withheld=0, supported=nxt.supported + 1)
+    nxt = replace(nxt, withheld=0, supported=nxt.supported + 1, confirmed=True, pending=0)
     return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
                             est.evaluations, ms, est.reinitialised, move.body_changed, ghost=ghost)

@@ -49,6 +49,8 @@ class TrackerState:
     supported: int = 0  # poses published since the background was learned
     ghost_run: int = 0  # consecutive frames whose silhouette was a ghost (silhouette/ghost.py)
     ghost_recent: tuple[float, ...] = ()  # the last frames' ghost fractions
+    confirmed: bool = False  # a pose was published since the background was learned
+    pending: int = 0  # consecutive good poses withheld while confirming (TrackerConfig.confirm_frames)
     camera_estimate: CameraEstimate | None = None  # the camera's placement measured from its frames
     init_rows: tuple[tuple[float, float], ...] = ()  # the silhouette's (feet, head) rows while initialising
     estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
@@ -80,7 +82,8 @@ class FrameResult:
         ``'height'`` or ``'non-finite'`` when the estimate put the person where no person can be seen
         from this camera (:func:`tracker_service.pipeline.process.implausible`), ``'low-confidence'``
         below ``TrackerConfig.min_confidence``, ``'ghost'`` when the silhouette is the ghost of a person
-        learned into the background (:mod:`tracker_service.silhouette.ghost`).
+        learned into the background (:mod:`tracker_service.silhouette.ghost`), ``'confirming'`` for the
+        first good poses after the background was learned (``TrackerConfig.confirm_frames``).
     ghost : float
         The silhouette's ghost fraction (0 when not judged).
     """

@@ -423,3 +423,55 @@ def foreground_kernel(frame: NDArray[np.uint8], chroma_mean: NDArray[np.float32]
             if not fg and bm > dark and b > dark and maha > thr:
                 fg = True
             out[y, x] = fg
+
+
+@njit(cache=True, nogil=True, error_model="numpy")  # no zero-division checks: the divisors are floored
+def update_background_kernel(frame: NDArray[np.uint8], foreground: NDArray[np.bool_], rate: float,
+                             chroma_mean: NDArray[np.float32], chroma_inv_var: NDArray[np.float32],
+                             bright_mean: NDArray[np.float32], bright_std: NDArray[np.float32], row0: int = 0,
+                             row_step: int = 1) -> None:
+    """The running mean and variance update of
+    :func:`tracker_service.silhouette.background.update_background`, in place, in one pass; pixels in
+    ``foreground`` are left as they are. Same float32 arithmetic as the numpy reference.
+
+    Parameters
+    ----------
+    frame : (H, W, 3) uint8
+        BGR, smoothed as the model's frames.
+    foreground : (H, W) bool
+    rate : float
+    chroma_mean, chroma_inv_var : (H, W, 2) float32
+    bright_mean, bright_std : (H, W) float32
+    row0, row_step : int
+        Only rows ``row0, row0 + row_step, ...`` are updated.
+    """
+    h, w = foreground.shape
+    r = np.float32(rate)
+    c_floor = np.float32(0.004 * 0.004)
+    b_floor = np.float32(4.0)
+    third = np.float32(3.0)
+    eps = np.float32(1e-6)
+    for y in range(row0, h, row_step):
+        for x in range(w):
+            if foreground[y, x]:
+                continue
+            bl = np.float32(frame[y, x, 0])
+            g = np.float32(frame[y, x, 1])
+            rd = np.float32(frame[y, x, 2])
+            s = bl + g + rd
+            inv_s = max(s, eps)
+            for k in range(2):
+                c = (g if k == 0 else rd) / inv_s
+                cm = chroma_mean[y, x, k] + r * (c - chroma_mean[y, x, k])
+                c_var = np.float32(1.0) / chroma_inv_var[y, x, k]
+                d = c - cm
+                c_var = c_var + r * (d * d - c_var)
+                chroma_mean[y, x, k] = cm
+                chroma_inv_var[y, x, k] = np.float32(1.0) / max(c_var, c_floor)
+            b = s / third
+            bm = bright_mean[y, x] + r * (b - bright_mean[y, x])
+            var = bright_std[y, x] * bright_std[y, x]
+            db = b - bm
+            var = var + r * (db * db - var)
+            bright_mean[y, x] = bm
+            bright_std[y, x] = np.sqrt(max(var, b_floor))

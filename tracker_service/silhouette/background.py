@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from tracker_service.silhouette._kernels import foreground_kernel
+from tracker_service.silhouette._kernels import foreground_kernel, update_background_kernel
 
 __all__ = [
     "NOISY_BRIGHT_STD",
@@ -35,6 +35,7 @@ __all__ = [
     "smoothing_for",
     "subtract",
     "update_background",
+    "update_background_reference",
 ]
 
 _EPS = 1e-6
@@ -443,8 +444,9 @@ def subtract(model: BackgroundModel, frame: NDArray[np.uint8],
 
 
 def update_background(model: BackgroundModel, frame: NDArray[np.uint8], foreground: NDArray[np.bool_],
-                      rate: float = 0.01) -> BackgroundModel:
-    """Slow adaptive update of the background pixels (running mean and variance).
+                      rate: float = 0.01, rows: tuple[int, int] = (0, 1)) -> BackgroundModel:
+    """Slow adaptive update of the background pixels (running mean and variance; numba kernel,
+    reference :func:`update_background_reference`).
 
     Parameters
     ----------
@@ -454,15 +456,34 @@ def update_background(model: BackgroundModel, frame: NDArray[np.uint8], foregrou
         Pixels to leave untouched (the subject, dilated by the caller if desired).
     rate : float
         Learning rate in (0, 1).
+    rows : (int, int)
+        ``(first, step)``: only every ``step``-th row from ``first`` is updated (the pipeline
+        updates alternate rows at twice the rate: the same time constant at half the cost).
 
     Returns
     -------
     BackgroundModel
+        New arrays; ``model`` is not changed.
     """
     if not 0 < rate < 1:
         raise ValueError("rate must be in (0, 1)")
+    cm, cinv = model.chroma_mean.copy(), model.chroma_inv_var.copy()
+    bm, bs = model.bright_mean.copy(), model.bright_std.copy()
+    update_background_kernel(np.ascontiguousarray(smoothed(frame, model.smooth_sigma)),
+                             np.ascontiguousarray(foreground, dtype=np.bool_), float(rate), cm, cinv, bm, bs,
+                             int(rows[0]), int(rows[1]))
+    return replace(model, chroma_mean=cm, chroma_inv_var=cinv, bright_mean=bm, bright_std=bs)
+
+
+def update_background_reference(model: BackgroundModel, frame: NDArray[np.uint8], foreground: NDArray[np.bool_],
+                                rate: float = 0.01, rows: tuple[int, int] = (0, 1)) -> BackgroundModel:
+    """Numpy reference of :func:`update_background`."""
+    if not 0 < rate < 1:
+        raise ValueError("rate must be in (0, 1)")
     c, b = _chroma_bright(smoothed(frame, model.smooth_sigma))
-    w = np.where(foreground, 0.0, rate).astype(np.float32)
+    skip = np.ones(foreground.shape, bool)
+    skip[rows[0]::rows[1]] = False
+    w = np.where(foreground | skip, 0.0, rate).astype(np.float32)
     cm = model.chroma_mean + w[..., None] * (c - model.chroma_mean)
     c_var = 1.0 / model.chroma_inv_var
     c_var = c_var + w[..., None] * ((c - cm) ** 2 - c_var)

@@ -170,8 +170,11 @@ def test_eval_prints_the_json_contract(small_db, weak_appearance_net) -> None:  
     assert out["mpjpe_cm"] is not None and 0 < out["mpjpe_cm"] < 100
     assert out["accel_error_cm"] is not None and 0 <= out["accel_error_cm"] < 20
     assert len(out["distance_evals_per_level"]) == 3
-    # steady-state timing starts after the frame that ends initialisation (which may score bodies)
-    assert out["steady_frames"] == out["tracked_frames"] - TrackerConfig().init_frames
+    # steady-state timing starts after the frame that ends initialisation (which may score bodies); the
+    # first confirm_frames - 1 of the initialising frames are withheld (confirming), not tracked
+    cfg = TrackerConfig()
+    assert out["steady_frames"] == out["tracked_frames"] - (cfg.init_frames - (cfg.confirm_frames - 1))
+    assert out["withheld"].get("confirming") == cfg.confirm_frames - 1
 
 
 def test_evaluate_motion_shows_every_frame_to_its_observer(small_db) -> None:  # type: ignore[no-untyped-def]

@@ -59,10 +59,13 @@ def test_phases_and_outputs(small_db, rng: np.random.Generator) -> None:  # type
     st, res = process_frame(st, _frame(room, off, rng), loaded.db, loaded.body, cam, cfg)
     assert res.phase == "waiting" and res.silhouette is not None and res.silhouette.any()
     errs = []
-    for f in range(0, 40, 2):
+    for k, f in enumerate(range(0, 40, 2)):
         mask = render_silhouette(truth[f], subject.capsule_radii, cam)
         st, res = process_frame(st, _frame(room, mask, rng), loaded.db, loaded.body, cam, cfg)
         phases.append(res.phase)
+        if k < cfg.confirm_frames - 1:  # the first good poses after learning the room are held back
+            assert res.pose is None and res.rejected == "confirming"
+            continue
         assert res.pose is not None and res.joints is not None
         assert np.all(np.isfinite(res.joints))
         assert 0.0 <= res.confidence <= 1.0

@@ -11,6 +11,7 @@ from tracker_service.silhouette.background import (
     raw_foreground_reference,
     subtract,
     update_background,
+    update_background_reference,
 )
 
 
@@ -111,6 +112,28 @@ def test_adaptive_update_absorbs_a_slow_change(rng: np.random.Generator) -> None
     for _ in range(400):
         model = update_background(model, _frames(rng, moved, 1)[0], np.zeros(base.shape[:2], bool), rate=0.05)
     assert not subtract(model, frame).any()
+
+
+@pytest.mark.parametrize("gain", [0.8, 1.1])
+def test_update_kernel_matches_numpy_reference(rng: np.random.Generator, gain: float) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 10))
+    frame = _frames(rng, base, 1, gain)[0]
+    frame[:8, :8] = 0  # black: chromaticity undefined
+    fg = _person_mask()
+    fast = update_background(model, frame, fg, rate=0.05)
+    ref = update_background_reference(model, frame, fg, rate=0.05)
+    for name in ("chroma_mean", "chroma_inv_var", "bright_mean", "bright_std"):
+        a, b = getattr(fast, name), getattr(ref, name)
+        assert a.dtype == b.dtype == np.float32 and a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=2e-5, atol=1e-6)
+    odd = update_background(model, frame, fg, rate=0.05, rows=(1, 2))  # every other row
+    np.testing.assert_allclose(odd.bright_mean, update_background_reference(model, frame, fg, 0.05, (1, 2)).bright_mean,
+                               rtol=2e-5, atol=1e-6)
+    np.testing.assert_array_equal(odd.bright_mean[0::2], model.bright_mean[0::2])
+    np.testing.assert_array_equal(fast.bright_mean[fg], model.bright_mean[fg])  # the person left alone
+    assert not np.array_equal(fast.bright_mean[~fg], model.bright_mean[~fg])
+    assert model.bright_mean is not fast.bright_mean  # a new model; the old one unchanged
 
 
 def test_bad_input_is_rejected(rng: np.random.Generator) -> None:

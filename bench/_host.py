@@ -4,9 +4,11 @@ block of their JSON (command, date, machine, probe, wall time)."""
 
 from __future__ import annotations
 
+import json
 import platform
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,3 +32,11 @@ def bench_meta(script: str, t0: float, **extra: Any) -> dict[str, Any]:
     return {"command": f"bench/{script} " + " ".join(sys.argv[1:]), "date": time.strftime("%Y-%m-%d"),
             "machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "host": host_probe(),
             **extra, "wall_s": round(time.time() - t0)}
+
+
+def write_report(out: Path, name: str, report: dict[str, Any], lines: list[str]) -> None:
+    """Write ``out/NAME.json`` (``report``) and ``out/NAME.md`` (the table ``lines``), and print the table."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(report, indent=1, default=str))
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))

@@ -16,14 +16,13 @@ to ``--out`` (default ``out/bench_camera_estimate``). Not a test: it takes a min
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _host import bench_meta  # bench/ is the script's folder
+from _host import bench_meta, write_report  # bench/ is the script's folder
 from tqdm import tqdm
 
 from protocol.formats.load import load_motion
@@ -103,12 +102,8 @@ def main() -> int:
         lines.append(f"| {row['camera']} | {len(rs)} | {f(row['tilt_err_max'])} | {f(row['roll_err_max'])} | "
                      f"{f(row['height_err_cm_max'])} | {f(row['height_err_assumed_cm_max'])} | "
                      f"{', '.join(str(n) for n in row['segments'])} |")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     meta = bench_meta("bench_camera_estimate.py", t0, seeds=seeds, vary=list(vary))
-    (out / "camera_estimate.json").write_text(json.dumps({"meta": meta, "rows": summary, "runs": runs}, indent=1))
-    (out / "camera_estimate.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_report(Path(args.out), "camera_estimate", {"meta": meta, "rows": summary, "runs": runs}, lines)
     return 0
 
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from _host import bench_meta, held_out_spread  # bench/ is the script's folder
+from _host import bench_meta, held_out_spread, write_report  # bench/ is the script's folder
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
@@ -187,10 +187,7 @@ def main() -> int:
                      f"{m('pa_mpjpe_ours'):.2f} / {m('pa_mpjpe_mediapipe'):.2f} | {wins}/{len(c)} | "
                      f"{m('found_ours'):.2f} / {m('found_mediapipe'):.2f} | {ms_ours:.1f} / {m('ms_mediapipe'):.1f} |")
     meta = bench_meta("bench_peers.py", t0, seeds=seeds, takes=[e.path for e in pick], frames=args.frames)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "peers.json").write_text(json.dumps({"meta": meta, "rows": summary, "runs": cells}, indent=1))
-    (out / "peers.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_report(out, "peers", {"meta": meta, "rows": summary, "runs": cells}, lines)
     return 0
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _host import bench_meta, held_out_spread  # bench/ is the script's folder
+from _host import bench_meta, held_out_spread, write_report  # bench/ is the script's folder
 from tqdm import tqdm
 
 from protocol.formats.mocap_data import mocap_root
@@ -82,11 +82,8 @@ def main() -> int:
         lines.append(f"| {a} | {len(ok)} | {mp.mean():.2f} | {mp.max():.2f} | {w10.mean():.3f} | {st.mean():.1f} | "
                      f"{', '.join(what)} |")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     meta = bench_meta("bench_robustness.py", t0, seeds=seeds, takes=[e.path for e in pick], frames=args.frames)
-    (out / "robustness.json").write_text(json.dumps({"meta": meta, "rows": summary, "runs": records}, indent=1))
-    (out / "robustness.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_report(out, "robustness", {"meta": meta, "rows": summary, "runs": records}, lines)
     return 0
 
 

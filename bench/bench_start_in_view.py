@@ -34,7 +34,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from _host import bench_meta, held_out_spread  # bench/ is the script's folder
+from _host import bench_meta, held_out_spread, write_report  # bench/ is the script's folder
 from tqdm import tqdm
 
 from protocol.formats.mocap_data import mocap_root
@@ -112,14 +112,9 @@ def main() -> int:
     lines.append("")
     lines.append(f"{verdicts['tracks']} track, {verdicts['refuses']} refuse, {verdicts['fails']} fail; worst published "
                  f"root error with the person in view at start: {worst_root:.0f} cm (never more than 50 cm allowed)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     meta = bench_meta("bench_start_in_view.py", t0, seeds=seeds, takes=[r["take"] for r in records][::len(seeds)],
-                      frames=args.frames,
-                      vary=args.vary)
-    (out / "start_in_view.json").write_text(json.dumps({"meta": meta, "summary": summary, "runs": records}, indent=1))
-    (out / "start_in_view.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+                      frames=args.frames, vary=args.vary)
+    write_report(Path(args.out), "start_in_view", {"meta": meta, "summary": summary, "runs": records}, lines)
     return 0
 
 

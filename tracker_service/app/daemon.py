@@ -107,6 +107,7 @@ class _Run:
         self.last_preview = -np.inf
         self.t_start = time.monotonic()
         self.seq = 0
+        self.advice = ""  # the last advice logged
 
     def on_body_query(self, query: zenoh.Query) -> None:
         try:
@@ -136,6 +137,10 @@ class _Run:
             log.warning("skipping frame %d: %s", values["frames_in"], exc)
             return None
         self.counters.add_stages(res.stage_ms)
+        if (said := advice(self.state)) != self.advice:  # what the person should do, in the log too
+            if said:
+                log.info("%s", said)
+            self.advice = said
         self.counters.times.append(time.monotonic())
         if res.reinitialised:
             values["reinitialisations"] += 1

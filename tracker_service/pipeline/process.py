@@ -52,7 +52,6 @@ from tracker_service.pipeline.state import FrameResult, Phase, TrackerState, new
 from tracker_service.silhouette.background import (
     learn_background,
     learn_background_robust,
-    smoothed,
     subtract,
     update_background,
 )
@@ -155,7 +154,7 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], camera: Camera, config
         frames = (*state.learning, frame) if (n - 1) % config.relearn_every == 0 else state.learning
         if len(frames) >= max(config.relearn_frames, 3):
             return replace(state, phase="waiting", background=learn_background_robust(np.stack(frames)), learning=(),
-                           relearning=False, frames_in_phase=0, supported=0, confirmed=False, pending=0)
+                           relearning=False, frames_in_phase=0, supported=0, pending=0)
         return replace(state, learning=frames, frames_in_phase=n)
     frames = (*state.learning, frame)
     if len(frames) >= max(config.background_frames, 2):
@@ -164,7 +163,7 @@ def _learn(state: TrackerState, frame: NDArray[np.uint8], camera: Camera, config
         if config.estimate_camera and estimate is None:  # the room's verticals: the camera's tilt and roll
             estimate = room_estimate(background.bright_mean, camera)
         return replace(state, phase="waiting", background=background, learning=(), supported=0,
-                       camera_estimate=estimate, confirmed=False, pending=0)
+                       camera_estimate=estimate, pending=0)
     return replace(state, learning=frames)
 
 
@@ -200,7 +199,7 @@ def _ghost(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_
         return replace(state, ghost_run=0, ghost_recent=()), 0.0
     bg = state.background
     params = config.ghost
-    g = ghost_fraction(bg.bright_mean, smoothed(frame, bg.smooth_sigma), mask, params)
+    g = ghost_fraction(bg.bright_mean, frame, mask, params, bg.smooth_sigma)
     recent = (*state.ghost_recent, g)[-params.window:]
     level = float(np.median(recent))
     if state.supported >= params.start_poses:
@@ -392,13 +391,13 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if why is None and est.confidence < config.min_confidence:
         why = "low-confidence"
     pending = chosen.state.pending
-    if why is None and not chosen.state.confirmed and pending + 1 < config.confirm_frames:
+    if why is None and chosen.state.supported == 0 and pending + 1 < config.confirm_frames:
         why = "confirming"  # the first poses after the background was learned wait for a few good frames
     if why is not None:  # the publishing stages' memory as before them: a withheld pose leaves no trace
         nxt = replace(chosen.state, reinits=nxt.reinits, pending=pending + 1 if why == "confirming" else 0)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, chosen.body_changed, why, ghost)
-    nxt = replace(nxt, withheld=0, supported=nxt.supported + 1, confirmed=True, pending=0)
+    nxt = replace(nxt, withheld=0, supported=nxt.supported + 1, pending=0)
     return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
                             est.evaluations, ms, est.reinitialised, move.body_changed, ghost=ghost)

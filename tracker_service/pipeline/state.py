@@ -49,8 +49,7 @@ class TrackerState:
     supported: int = 0  # poses published since the background was learned
     ghost_run: int = 0  # consecutive frames whose silhouette was a ghost (silhouette/ghost.py)
     ghost_recent: tuple[float, ...] = ()  # the last frames' ghost fractions
-    confirmed: bool = False  # a pose was published since the background was learned
-    pending: int = 0  # consecutive good poses withheld while confirming (TrackerConfig.confirm_frames)
+    pending: int = 0  # consecutive good poses withheld before the first one (TrackerConfig.confirm_frames)
     camera_estimate: CameraEstimate | None = None  # the camera's placement measured from its frames
     init_rows: tuple[tuple[float, float], ...] = ()  # the silhouette's (feet, head) rows while initialising
     estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter

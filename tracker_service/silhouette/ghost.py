@@ -128,7 +128,7 @@ def across_minus_along(image: NDArray[np.float32], outline: NDArray[np.bool_], n
 
 
 def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.uint8], mask: NDArray[np.bool_],
-                   params: GhostParams = GhostParams()) -> float:
+                   params: GhostParams = GhostParams(), frame_sigma: float = 0.0) -> float:
     """The share of the silhouette's outline that votes *ghost* rather than *person*.
 
     Parameters
@@ -137,10 +137,15 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
         The background model's brightness ``(R + G + B) / 3``
         (:attr:`~tracker_service.silhouette.background.BackgroundModel.bright_mean`).
     frame : (H, W, 3) uint8
-        The current frame (smoothed as the model's learning frames were).
+        The current frame, as the camera gave it.
     mask : (H, W) bool
         Its silhouette.
     params : GhostParams
+    frame_sigma : float
+        The Gaussian smoothing the model's learning frames had
+        (:attr:`~tracker_service.silhouette.background.BackgroundModel.smooth_sigma`): the frame's
+        crop gets it too, folded into its gradient's smoothing (two Gaussians make one), so that
+        the whole frame is not smoothed once more.
 
     Returns
     -------
@@ -153,7 +158,8 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
     if int(np.count_nonzero(outline_full)) < params.min_outline:
         return 0.0
     ys, xs = np.nonzero(outline_full)
-    pad = int(np.ceil(3 * max(params.image_sigma, params.mask_sigma))) + 2
+    frame_blur = float(np.hypot(params.image_sigma, frame_sigma))
+    pad = int(np.ceil(3 * max(frame_blur, params.mask_sigma))) + 2
     y0, x0 = max(int(ys.min()) - pad, 0), max(int(xs.min()) - pad, 0)
     y1, x1 = int(ys.max()) + pad + 1, int(xs.max()) + pad + 1
     outline = outline_full[y0:y1, x0:x1]
@@ -162,7 +168,7 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
     nx, ny = (mx[outline] / norm).astype(np.float32), (my[outline] / norm).astype(np.float32)
     cur = np.ascontiguousarray(np.asarray(frame[y0:y1, x0:x1], np.float32).mean(axis=2))
     then = np.ascontiguousarray(background_bright[y0:y1, x0:x1], np.float32)
-    e_now = across_minus_along(cur, outline, nx, ny, params.image_sigma)
+    e_now = across_minus_along(cur, outline, nx, ny, frame_blur)
     e_then = across_minus_along(then, outline, nx, ny, params.image_sigma)
     k, c = params.dominance, params.margin
     ghost = int(np.count_nonzero(e_then > k * np.maximum(e_now, 0.0) + c))

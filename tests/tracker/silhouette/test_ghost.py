@@ -81,3 +81,20 @@ def test_texture_cancels_and_an_edge_along_the_outline_counts(rng: np.random.Gen
 def test_params_are_ordered() -> None:
     p = GhostParams()
     assert 0 < p.threshold_relearned <= p.threshold_start <= p.threshold < 1 and p.frames >= 1
+
+
+def test_the_frames_smoothing_folds_into_the_gradients(rng: np.random.Generator) -> None:
+    """A noisy camera's smoothing given as ``frame_sigma`` reads as the frame smoothed first."""
+    from tracker_service.silhouette.background import smoothed
+
+    room = _room(rng, 25.0)
+    was, now = _person(120), _person(220)
+    model = room.copy()
+    model[was] = 40.0
+    frame = room.copy()
+    frame[now] = 40.0
+    img = _bgr(frame + rng.normal(0, 6.0, frame.shape), rng)
+    for sigma in (1.0, 1.5):
+        first = ghost_fraction(model, smoothed(img, sigma), was | now)
+        folded = ghost_fraction(model, img, was | now, frame_sigma=sigma)
+        assert abs(first - folded) < 0.03

@@ -158,6 +158,8 @@ def main() -> int:
         "xor_no_appearance": TrackerConfig(distance="xor"),
         # the appearance cue in the filter only: the published pose not refined toward its joints
         "xor_no_refine": TrackerConfig(distance="xor", refine=None),
+        # a foot the refinement put through the floor left there
+        "xor_no_floor": TrackerConfig(distance="xor", floor=None),
         # the network reads the crop once, not also mirrored
         "xor_no_mirror": TrackerConfig(distance="xor", appearance_mirror=False),
         # the selected model's bone proportions kept (no proportions from the cue)

@@ -81,7 +81,7 @@ class TrackerOptions:
         Whether ``measurements`` may name the synthetic person's own (``eval``).
     estimator, distance, pose : str
         Pose estimator, silhouette distance, ``mean`` or ``map`` pose.
-    occlusion, skin, shoes, smoothing, refine, proportions, reading_filter : bool
+    occlusion, skin, shoes, smoothing, refine, proportions, reading_filter, floor : bool
         Whether that stage or cue is on.
     max_heading_deg : float, optional
         The user faces the camera within this many degrees (None: any heading).
@@ -117,6 +117,7 @@ class TrackerOptions:
     refine: bool = True
     proportions: bool = True
     reading_filter: bool = True
+    floor: bool = True
     pose: Literal["mean", "map"] = "mean"
     smooth_cutoff: float | None = None
     smooth_beta: float | None = None

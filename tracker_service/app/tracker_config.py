@@ -99,6 +99,8 @@ def tracker_config(options: TrackerOptions) -> TrackerConfig:
         cfg = replace(cfg, use_mean_pose=False)
     if not options.refine:
         cfg = replace(cfg, refine=None)
+    if not options.floor:
+        cfg = replace(cfg, floor=None)
     if not options.proportions:
         cfg = replace(cfg, proportions=None)
     if not options.reading_filter:

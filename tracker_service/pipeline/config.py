@@ -11,6 +11,7 @@ from tracker_service.cues.reading_filter import ReadingFilterParams
 from tracker_service.cues.shoes import ShoeParams
 from tracker_service.cues.skin import SkinModel
 from tracker_service.estimators.tree_filter.model import FilterParams
+from tracker_service.pipeline.floor_contact import FloorParams
 from tracker_service.pipeline.refinement import RefineParams
 from tracker_service.pipeline.smoothing import OneEuroParams
 from tracker_service.silhouette.background import BackgroundParams
@@ -92,6 +93,9 @@ class TrackerConfig:
         Kalman filter (:mod:`tracker_service.cues.reading_filter`) before the published pose is refined
         toward them (restarted with every tracking session; kept through a re-initialisation);
         None: each frame's raw reading.
+    floor : FloorParams or None
+        Floor contact (:mod:`tracker_service.pipeline.floor_contact`): a leg whose ankle the
+        refinement put through the floor is bent back onto it, hip kept; None: off.
     smoothing : OneEuroParams or None
         One Euro filter of the published pose (:mod:`tracker_service.pipeline.smoothing`); None: the raw
         per-frame estimate.
@@ -151,6 +155,7 @@ class TrackerConfig:
     refine: RefineParams | None = field(default_factory=RefineParams)
     proportions: ProportionParams | None = field(default_factory=ProportionParams)
     reading_filter: ReadingFilterParams | None = field(default_factory=ReadingFilterParams)
+    floor: FloorParams | None = field(default_factory=FloorParams)
     smoothing: OneEuroParams | None = field(default_factory=OneEuroParams)
     fps: float = 30.0
     min_confidence: float = 0.01

@@ -5,7 +5,8 @@ cue re-weights the legs of the support's mean; the appearance network's reading 
 proportions once per session (:mod:`tracker_service.body.proportions`), is filtered over time
 (:mod:`tracker_service.cues.reading_filter`) and pulls the joints toward it (ELMO's local refinement,
 :mod:`tracker_service.pipeline.refinement`); the placement becomes a root position (depth from the
-feet line, :mod:`tracker_service.silhouette.placement`); the One Euro filter smooths it
+feet line, :mod:`tracker_service.silhouette.placement`); a leg through the floor is bent back onto
+it (:mod:`tracker_service.pipeline.floor_contact`); the One Euro filter smooths it
 (:mod:`tracker_service.pipeline.smoothing`).
 """
 
@@ -27,6 +28,7 @@ from tracker_service.cues.shoes import feet_cost, foot_points, reweight_legs, sh
 from tracker_service.estimators.base import Estimate
 from tracker_service.estimators.tree_filter.model import FilterDB
 from tracker_service.pipeline.config import TrackerConfig
+from tracker_service.pipeline.floor_contact import floor_contact
 from tracker_service.pipeline.observe import FrameEvidence
 from tracker_service.pipeline.refinement import refine_pose
 from tracker_service.pipeline.smoothing import smooth_pose
@@ -140,6 +142,8 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
             place = scaled_placement(np.array([place[0], 0.0, s_feet]), scale, camera)
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)
     pose[1] += _feet_offset(pose, body, db_body, scale)
+    if config.floor is not None:  # a leg the reading straightened through the floor bends back onto it
+        pose = floor_contact(pose, body, config.floor)
     smooth = st.smooth
     if config.smoothing is not None and phase == "tracking" and not est.reinitialised and not move.restarted:
         smooth, pose = smooth_pose(smooth, st.clock, pose, config.smoothing)

@@ -160,6 +160,9 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
     p.add_argument("--no-reading-filter", action="store_true",
                    help="with the refinement: refine toward each frame's raw reading, not the readings "
                         "Kalman-filtered over time")
+    p.add_argument("--no-floor", action="store_true",
+                   help="let a published foot go through the floor (by default a leg whose ankle sinks below "
+                        "the floor is bent back onto it, the hip kept)")
     p.add_argument("--min-confidence", type=float, default=0.01, metavar="C",
                    help="withhold poses whose silhouette match confidence is below C, in [0, 1] (default 0.01: "
                         "the match the filter itself counts as a miss; 0: publish every estimate)")
@@ -186,6 +189,7 @@ def tracker_options(args: argparse.Namespace, *, subject: bool) -> TrackerOption
         estimator=args.estimator, distance=args.distance, occlusion=not args.no_occlusion,
         max_heading_deg=args.max_heading, skin=not args.no_skin, shoes=not args.no_shoes,
         smoothing=not args.no_smoothing, appearance=args.appearance, refine=not args.no_refine,
-        proportions=not args.no_proportions, reading_filter=not args.no_reading_filter, pose=args.pose,
+        proportions=not args.no_proportions, reading_filter=not args.no_reading_filter, floor=not args.no_floor,
+        pose=args.pose,
         smooth_cutoff=cutoff, smooth_beta=beta, min_confidence=args.min_confidence,
         camera_file=camera_file, camera_height_m=camera_height, camera_tilt_deg=camera_tilt, fov_deg=fov)

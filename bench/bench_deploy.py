@@ -49,7 +49,8 @@ KEY = pose_key("cam0")
 
 def pose_frame(seq: int) -> PoseFrame:
     """A PoseFrame of the usual size, stamped now."""
-    return PoseFrame(tracker_id="cam0", seq=seq, capture_ts=seq / 30.0, publish_ts=time.time(),
+    now = time.time()
+    return PoseFrame(tracker_id="cam0", seq=seq, capture_ts=seq / 30.0, publish_ts=now, capture_wall_ts=now,
                      pose=np.linspace(-1.0, 1.0, POSE_SIZE, dtype=np.float32),
                      joints=(np.arange(N_JOINTS * 3).reshape(N_JOINTS, 3) * 0.01).astype(np.float32),
                      visibility=np.linspace(0.0, 1.0, N_PARTS, dtype=np.float32), confidence=0.75, estimator="tree",

@@ -191,7 +191,8 @@ def fuzz_template(key: str) -> Any:
     leaf = key.rstrip("/").rsplit("/", 1)[-1]
     tid = key.split("/")[2] if key.startswith("mocap/tracker/") and key.count("/") >= 3 else "fuzz"
     if leaf == "pose":
-        return PoseFrame(tracker_id=tid, seq=1, capture_ts=1.0, publish_ts=time.time(),
+        now = time.time()
+        return PoseFrame(tracker_id=tid, seq=1, capture_ts=1.0, publish_ts=now, capture_wall_ts=now,
                          pose=np.zeros(POSE_SIZE, np.float32), joints=np.zeros((N_JOINTS, 3), np.float32),
                          visibility=np.ones(N_PARTS, np.float32), confidence=0.9, estimator="tree",
                          body_model="mMA")

@@ -107,6 +107,7 @@ class Tracker:
         ValueError
             A frame of the wrong size or type.
         """
+        wall = time.time()
         self.state, res = process_frame(self.state, frame, self._loaded.db, self._loaded.body, self.camera,
                                         self.config, t)
         self.last = res
@@ -114,7 +115,7 @@ class Tracker:
             return None
         seq, self._seq = self._seq, self._seq + 1
         return PoseFrame(tracker_id=self.tracker_id, seq=seq, capture_ts=float(self.state.clock),
-                         publish_ts=time.time(), pose=res.pose.astype(np.float32),
+                         publish_ts=time.time(), capture_wall_ts=wall, pose=res.pose.astype(np.float32),
                          joints=res.joints.astype(np.float32),
                          visibility=np.clip(res.visibility, 0, 1).astype(np.float32),
                          confidence=float(np.clip(res.confidence, 0, 1)), estimator=self.config.estimator,

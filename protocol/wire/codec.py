@@ -222,7 +222,7 @@ _REGISTRY: Final[dict[str, tuple[type[Any], dict[str, Check]]]] = {
         "schema_version": _schema_version,
         "tracker_id": _str(pattern=TRACKER_ID_PATTERN),
         "seq": _int(0),
-        "capture_ts": _TIME, "publish_ts": _TIME,
+        "capture_ts": _TIME, "publish_ts": _TIME, "capture_wall_ts": _TIME,
         "pose": _farray((POSE_SIZE,)),
         "joints": _farray((N_JOINTS, 3)),
         "visibility": _farray((N_PARTS,), 0.0, 1.0),

@@ -27,7 +27,7 @@ __all__ = [
 ]
 
 #: Version of every message type defined here. Bumped on any incompatible change.
-SCHEMA_VERSION: Final[int] = 2
+SCHEMA_VERSION: Final[int] = 3
 
 
 class TrackerState(StrEnum):
@@ -63,6 +63,12 @@ class PoseFrame:
         Stream time of the camera frame, seconds (monotonic within a tracker run).
     publish_ts : float
         Wall-clock time of publication, seconds since the Unix epoch.
+    capture_wall_ts : float
+        Wall-clock time the tracker got the frame (a camera's read returned, a file's frame was
+        decoded, the synthetic scene drew it), seconds since the Unix epoch, never after
+        ``publish_ts``: ``publish_ts - capture_wall_ts`` is the tracker's own latency, a client's
+        receipt time minus it the latency from capture to that client (same host or synchronised
+        clocks). A replay of recorded poses sets it to ``publish_ts``.
     pose : (P,) float32
         Pose vector, layout in :mod:`protocol.skeleton` (P = 60).
     joints : (J, 3) float32
@@ -83,6 +89,7 @@ class PoseFrame:
     seq: int
     capture_ts: float
     publish_ts: float
+    capture_wall_ts: float
     pose: NDArray[np.float32]
     joints: NDArray[np.float32]
     visibility: NDArray[np.float32]

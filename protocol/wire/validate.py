@@ -151,7 +151,8 @@ def check_pose_frame(frame: Any) -> str | None:
     Reasons: ``pose_nonfinite``, ``pose_position`` (root beyond :data:`MAX_POSITION_M`),
     ``pose_rotation`` (a rotation vector longer than :data:`MAX_ROTATION_RAD`), ``pose_joints``
     (a joint beyond :data:`MAX_POSITION_M` or farther than :data:`JOINT_EXTENT_MAX_M` from the root
-    joint), ``pose_confidence`` (confidence or visibility outside [0, 1]).
+    joint), ``pose_confidence`` (confidence or visibility outside [0, 1]), ``pose_clock`` (captured
+    after it was published).
     """
     try:
         pose = _array(frame.pose, (POSE_SIZE,))
@@ -171,6 +172,9 @@ def check_pose_frame(frame: Any) -> str | None:
         if conf is None or not 0.0 <= conf <= 1.0 or not (np.isfinite(vis).all() and vis.min() >= 0.0
                                                             and vis.max() <= 1.0):
             return "pose_confidence"
+        cap, pub = _finite_float(frame.capture_wall_ts), _finite_float(frame.publish_ts)
+        if cap is None or pub is None or cap > pub:
+            return "pose_clock"
     except Exception:  # never raise, whatever arrives
         return "pose_malformed"
     return None

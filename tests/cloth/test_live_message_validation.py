@@ -71,7 +71,7 @@ def _frame(seq: int, ts: float, pose: np.ndarray | None = None) -> PoseFrame:
     p = standing_pose(BODY) if pose is None else pose
     p = p.copy()
     p[0] = 0.3 * np.sin(ts)  # a slow sway
-    return PoseFrame("t", seq, ts, 0.0, p, fk(p, BODY), np.ones(15), 1.0, "replay", BODY.name)
+    return PoseFrame("t", seq, ts, 0.0, 0.0, p, fk(p, BODY), np.ones(15), 1.0, "replay", BODY.name)
 
 
 def _stream(client: ClothClient, n: int, seq0: int = 0, t0: float = 0.0, now0: float = 0.0) -> float:

@@ -36,7 +36,7 @@ FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCh
 
 def pose_frame(**kw: Any) -> PoseFrame:
     args: dict[str, Any] = dict(
-        tracker_id="cam0", seq=7, capture_ts=12.5, publish_ts=1_700_000_000.123456,
+        tracker_id="cam0", seq=7, capture_ts=12.5, publish_ts=1_700_000_000.123456, capture_wall_ts=1_700_000_000.1,
         pose=np.linspace(-1.0, 1.0, POSE_SIZE), joints=np.arange(N_JOINTS * 3).reshape(N_JOINTS, 3) * 0.01,
         visibility=np.linspace(0.0, 1.0, N_PARTS), confidence=0.75, estimator="tree", body_model="mMA",
     )
@@ -63,11 +63,11 @@ EXTREME = np.array([F32.max, -F32.max, F32.tiny, -F32.tiny, F32.smallest_subnorm
 
 ROUND_TRIP: list[Any] = [
     pose_frame(),
-    pose_frame(seq=0, capture_ts=0, publish_ts=0, confidence=0, visibility=np.zeros(N_PARTS),
+    pose_frame(seq=0, capture_ts=0, publish_ts=0, capture_wall_ts=0, confidence=0, visibility=np.zeros(N_PARTS),
                pose=np.zeros(POSE_SIZE), joints=np.zeros((N_JOINTS, 3))),
     pose_frame(seq=2**63 - 1, confidence=1.0, visibility=np.ones(N_PARTS), tracker_id=ID_CHARS[:64],
                pose=np.resize(EXTREME, POSE_SIZE), joints=np.resize(EXTREME[::-1], (N_JOINTS, 3)),
-               capture_ts=1e300, publish_ts=4_102_444_800.000001),
+               capture_ts=1e300, publish_ts=4_102_444_800.000001, capture_wall_ts=4_102_444_800.0),
     pose_frame(tracker_id="-", estimator="é" * 256, body_model="\U0001f600" * 256),  # 1024 UTF-8 bytes
     body_info(),
     body_info(tracker_id="x", measurements={}, body_model="b"),
@@ -423,7 +423,7 @@ def f32(lo: float | None = None, hi: float | None = None) -> st.SearchStrategy[f
 @FUZZ
 @given(
     tracker_id=st.from_regex(r"[A-Za-z0-9_-]{1,64}", fullmatch=True), seq=st.integers(0, 2**63 - 1),
-    capture_ts=st.floats(0, 1e12), publish_ts=st.floats(0, 1e12),
+    capture_ts=st.floats(0, 1e12), publish_ts=st.floats(0, 1e12), capture_wall_ts=st.floats(0, 1e12),
     pose=hnp.arrays(np.float32, POSE_SIZE, elements=f32()),
     joints=hnp.arrays(np.float32, (N_JOINTS, 3), elements=f32()),
     visibility=hnp.arrays(np.float32, N_PARTS, elements=f32(0, 1)), confidence=st.floats(0, 1),

@@ -35,7 +35,7 @@ def _info(scale: float = 1.0, **kw: object) -> BodyInfo:
 def _frame(seq: int = 0, ts: float = 0.0, pose: np.ndarray | None = None, joints: np.ndarray | None = None,
            confidence: float = 1.0) -> PoseFrame:
     p = standing_pose(BODY) if pose is None else pose
-    return PoseFrame("t", seq, ts, 0.0, p, fk(p, BODY) if joints is None else joints, np.ones(15), confidence,
+    return PoseFrame("t", seq, ts, 0.0, 0.0, p, fk(p, BODY) if joints is None else joints, np.ones(15), confidence,
                      "replay", BODY.name)
 
 
@@ -84,6 +84,13 @@ def test_pose_frame_ranges() -> None:
     j2[9] += (0.0, 10.0, 0.0)  # a hand 10 m from the body
     assert check_pose_frame(_frame(joints=j2)) == "pose_joints"
     assert POSE_SIZE == len(p)
+
+
+def test_pose_frame_captured_after_publication_is_refused() -> None:
+    ok = dataclasses.replace(_frame(), publish_ts=1_700_000_000.5, capture_wall_ts=1_700_000_000.4)
+    assert check_pose_frame(ok) is None
+    assert check_pose_frame(dataclasses.replace(ok, capture_wall_ts=ok.publish_ts)) is None  # a replay
+    assert check_pose_frame(dataclasses.replace(ok, capture_wall_ts=1_700_000_000.6)) == "pose_clock"
 
 
 def _run(clock: StreamClock, frames: list[tuple[int, float, float]]) -> list[str | None]:

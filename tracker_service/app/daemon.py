@@ -83,9 +83,11 @@ class _Counters:
         return (len(self.times) - 1) / span if span > 0 else 0.0
 
 
-def _pose_frame(tid: str, seq: int, ts: float, res: FrameResult, body_name: str, estimator: str) -> PoseFrame:
+def _pose_frame(tid: str, seq: int, ts: float, wall: float, res: FrameResult, body_name: str, estimator: str
+                ) -> PoseFrame:
     assert res.pose is not None and res.joints is not None
-    return PoseFrame(tracker_id=tid, seq=seq, capture_ts=float(ts), publish_ts=time.time(),
+    now = time.time()
+    return PoseFrame(tracker_id=tid, seq=seq, capture_ts=float(ts), publish_ts=now, capture_wall_ts=min(wall, now),
                      pose=res.pose.astype(np.float32), joints=res.joints.astype(np.float32),
                      visibility=np.clip(res.visibility, 0, 1).astype(np.float32),
                      confidence=float(np.clip(res.confidence, 0, 1)), estimator=estimator, body_model=body_name)
@@ -124,9 +126,12 @@ class _Run:
             estimator=self.config.estimator, body_model=self.state.body.name, advice=advice(self.state),
             camera=self.state.camera_estimate.as_dict() if self.state.camera_estimate is not None else {}))
 
-    def step(self, ts: float, frame: Any, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher) -> FrameResult | None:
+    def step(self, ts: float, frame: Any, pose_pub: zenoh.Publisher, body_pub: zenoh.Publisher,
+             wall: float | None = None) -> FrameResult | None:
         """Process one frame and publish its pose (and the body when it changed); None for a frame
-        the pipeline cannot use (skipped and counted)."""
+        the pipeline cannot use (skipped and counted). ``wall``: when the frame was got
+        (``time.time()``; default now)."""
+        wall = time.time() if wall is None else wall
         values = self.counters.values
         values["frames_in"] += 1
         loaded = self.loaded
@@ -157,7 +162,7 @@ class _Run:
         self.body_matched = matched
         if res.pose is not None:
             try:
-                frame_msg = _pose_frame(self.tid, self.seq, ts, res, self.state.body.name, self.config.estimator)
+                frame_msg = _pose_frame(self.tid, self.seq, ts, wall, res, self.state.body.name, self.config.estimator)
                 pose_pub.put(encode(frame_msg))
                 values["published"] += 1
                 self.seq += 1
@@ -199,9 +204,10 @@ class _Run:
         period = 1.0 / options.fps_hint
         due = time.monotonic()
         for ts, frame in source:
+            wall = time.time()  # the frame is here: its capture, as far as the tracker can tell
             if stop.is_set():
                 break
-            res = self.step(ts, frame, pose_pub, body_pub)
+            res = self.step(ts, frame, pose_pub, body_pub, wall)
             if observe is not None:
                 observe(ts, frame, res)
             if res is None:

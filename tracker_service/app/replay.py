@@ -189,6 +189,7 @@ class ReplayStream:
             seq=k,
             capture_ts=self.capture_ts(k),
             publish_ts=float(publish_ts),
+            capture_wall_ts=float(publish_ts),  # a replay has no camera: captured as published
             pose=self.poses[i],
             joints=self.joints[i],
             visibility=self._visibility,

@@ -77,7 +77,7 @@ class LiveState:
         now : float, optional
             ``time.monotonic()`` of arrival.
         wall : float, optional
-            ``time.time()`` of arrival (for the pose's latency from its ``publish_ts``).
+            ``time.time()`` of arrival (for the latency from the frame's capture, ``capture_wall_ts``).
         """
         now = time.monotonic() if now is None else now
         try:
@@ -101,7 +101,7 @@ class LiveState:
                     self._drop(reason)
                     return False
                 view.pose = pose
-                view.latency_ms.append(max(0.0, (wall - pose.publish_ts) * 1e3))
+                view.latency_ms.append(max(0.0, (wall - pose.capture_wall_ts) * 1e3))
             elif leaf == "body":
                 body = decode(payload, BodyInfo)
                 if (reason := check_body_info(body)) is not None:

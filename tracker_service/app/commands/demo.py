@@ -214,7 +214,7 @@ class _Listener:
         except ProtocolError:
             self.malformed += 1
             return
-        latency = 1000.0 * (now - f.publish_ts) + self.process_ms
+        latency = 1000.0 * (now - f.capture_wall_ts)  # capture to receipt, this very frame
         self.poses.append(PoseSeen(f.seq, float(f.capture_ts), float(f.publish_ts), now, f.joints, latency))
 
     def status(self, payload: bytes) -> None:

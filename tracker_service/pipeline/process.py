@@ -45,6 +45,7 @@ from tracker_service.pipeline.camera_estimate import (
     silhouette_rows,
     with_height,
 )
+from tracker_service.pipeline.confidence import pose_confidence
 from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.observe import FrameEvidence, observe
 from tracker_service.pipeline.publish import Transition, publish
@@ -399,5 +400,6 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, chosen.body_changed, why, ghost)
     nxt = replace(nxt, withheld=0, supported=nxt.supported + 1, pending=0)
-    return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, est.confidence, est.distance,
+    confidence = pose_confidence(move.error_m, est.confidence)  # how far the pose probably is from the truth
+    return nxt, FrameResult(nxt.phase, mask, pose, joints, est.visibility, confidence, est.distance,
                             est.evaluations, ms, est.reinitialised, move.body_changed, ghost=ghost)

@@ -27,6 +27,7 @@ from tracker_service.cues.reading_filter import filter_reading
 from tracker_service.cues.shoes import feet_cost, foot_points, reweight_legs, shoe_pixels
 from tracker_service.estimators.base import Estimate
 from tracker_service.estimators.tree_filter.model import FilterDB
+from tracker_service.pipeline.confidence import expected_error
 from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.pipeline.floor_contact import floor_contact
 from tracker_service.pipeline.observe import FrameEvidence
@@ -53,11 +54,15 @@ class Transition:
         The published skeleton changed this frame (a body chosen, proportions read).
     restarted : bool
         The estimator restarted at a new body size (the smoother restarts too).
+    error_m : float
+        The published pose's expected joint error, metres
+        (:func:`tracker_service.pipeline.confidence.expected_error`); NaN without the reading.
     """
 
     state: TrackerState
     body_changed: bool
     restarted: bool
+    error_m: float = float("nan")
 
 
 def _feet_offset(pose: NDArray[np.float64], body: Body, db_body: Body, scale: float) -> float:
@@ -132,8 +137,11 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
     elif seen is not None and config.reading_filter is not None and config.refine is not None:
         reading, *filtered = filter_reading(reading, st.clock, seen[0], seen[1], config.reading_filter)
         seen = (filtered[0], filtered[1])
+    error_m = float("nan")
     if seen is not None and config.refine is not None:  # ELMO's local refinement (refinement.py)
+        before = pose
         pose = refine_pose(pose, body, camera.pose[:3, :3], seen[0], seen[1], body.height, config.refine)
+        error_m = expected_error(fk(before, body), fk(pose, body), seen[1], body.height)  # the confidence's
     place = est.placement.copy()
     if config.depth_from_feet and est.leaf >= 0:  # the feet line measures depth better than the template's scale
         s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)
@@ -151,4 +159,4 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
         smooth = None
     st = replace(st, body=body, smooth=smooth, bone_readings=readings, proportions_set=proportions_set,
                  base_body=base_body, reading=reading)
-    return pose, Transition(st, body_changed, move.restarted)
+    return pose, Transition(st, body_changed, move.restarted, error_m)

@@ -68,6 +68,8 @@ class FrameResult:
     joints : (J, 3) float64 or None
     visibility : (N_PARTS,) float32
     confidence : float
+        In [0, 1]: how close the pose probably is to the truth
+        (:mod:`tracker_service.pipeline.confidence`; the silhouette match's without the reading).
     distance : float
     evaluations : tuple of int
     stage_ms : dict[str, float]

@@ -1,12 +1,15 @@
-"""Offscreen pyrender view of the avatar (capsules) and its garment, written to PNG / GIF / MP4.
+"""Offscreen pyrender view of the avatar and its garment, written to PNG / GIF / MP4.
 
 The OpenGL platform is chosen here, before pyrender is imported: EGL (headless GPU or Mesa) by
 default; set ``PYOPENGL_PLATFORM=osmesa`` in the environment to use OSMesa instead.
 
-Each body capsule is meshed once (a round cone along +Z) and only its node pose changes per frame;
-the cloth mesh is rebuilt per frame with smooth vertex normals and a double-sided material. The
-camera keeps the avatar in frame: it looks at the pelvis from a fixed angle relative to the body's
-facing direction, both smoothed so that turns and steps do not shake the picture.
+The avatar is one smooth skinned surface around the body's capsules
+(:mod:`cloth_client.avatar.skin_mesh`), posed per frame on the capsules the cloth was simulated on
+(or, with ``skinned=False``, the capsules themselves, each meshed once and moved); the cloth mesh
+is rebuilt per frame with smooth vertex normals and a double-sided material. The camera keeps the
+avatar in frame: it looks at the body from a fixed angle relative to its facing direction, far
+enough that the floor and the head or the raised hands fit, all smoothed so that turns, steps and
+raised arms do not shake the picture.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from numpy.typing import NDArray
 
 from cloth_client.avatar.capsules import avatar_capsules, capsule_endpoints
 from cloth_client.avatar.limb_clearance import LIMB_CLEARANCE
+from cloth_client.avatar.skin_mesh import SkinnedMesh, build_skinned_mesh, pose_vertices
 from cloth_client.solver.garment import Garment
 from protocol.skeleton import Body
 
@@ -102,10 +106,15 @@ class ClothRenderer:
     limb_clearance : float or None
         The driver's :attr:`~cloth_client.solver.driver.DriverConfig.limb_clearance`, so the avatar drawn
         is the one simulated.
+    skinned : bool
+        Draw the avatar as one smooth skinned surface around its capsules
+        (:mod:`cloth_client.avatar.skin_mesh`, built once per body in about half a second) rather
+        than as the capsules themselves.
     """
 
     def __init__(self, body: Body, garment: Garment, width: int = 640, height: int = 480,
-                 azimuth_deg: float | None = None, limb_clearance: float | None = LIMB_CLEARANCE) -> None:
+                 azimuth_deg: float | None = None, limb_clearance: float | None = LIMB_CLEARANCE,
+                 skinned: bool = True) -> None:
         self.body, self.garment = body, garment
         self.limb_clearance = limb_clearance
         self.size = (int(width), int(height))
@@ -115,12 +124,16 @@ class ClothRenderer:
         self.cloth_material = pyrender.MetallicRoughnessMaterial(
             baseColorFactor=_CLOTH_COLOUR.get(garment.kind, (0.5, 0.5, 0.5, 1.0)), roughnessFactor=0.9,
             doubleSided=True)
-        a, b = capsule_endpoints(body, garment.pose)
+        self.skin_material = skin
         self.capsule_nodes = []
-        for c in range(len(a)):
-            length = float(np.linalg.norm(b[c] - a[c]))
-            mesh = round_cone_mesh(length, float(body.capsule_radii[c, 0]), float(body.capsule_radii[c, 1]))
-            self.capsule_nodes.append(self.scene.add(pyrender.Mesh.from_trimesh(mesh, material=skin, smooth=True)))
+        self.skin: SkinnedMesh | None = build_skinned_mesh(body) if skinned else None
+        self.skin_node: Any = None
+        if self.skin is None:
+            a, b = capsule_endpoints(body, garment.pose)
+            for c in range(len(a)):
+                length = float(np.linalg.norm(b[c] - a[c]))
+                mesh = round_cone_mesh(length, float(body.capsule_radii[c, 0]), float(body.capsule_radii[c, 1]))
+                self.capsule_nodes.append(self.scene.add(pyrender.Mesh.from_trimesh(mesh, material=skin, smooth=True)))
         floor = trimesh.creation.box(extents=(40.0, 0.02, 40.0))
         floor.apply_translation((0.0, -0.01, 0.0))
         floor_mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=(0.72, 0.72, 0.70, 1.0), roughnessFactor=1.0)
@@ -132,9 +145,11 @@ class ClothRenderer:
         self.cloth_node: Any = None
         self._target: F64 | None = None
         self._yaw: float | None = None
+        self._span: float | None = None
         self.renderer = pyrender.OffscreenRenderer(width, height)
 
-    def _frame_camera(self, pose: F64) -> None:
+    def _frame_camera(self, pose: F64, top: float) -> None:
+        """Aim at the body: ``top`` is the avatar's highest point (raised hands stay in the picture)."""
         root = pose[:3]
         fwd = trimesh.transformations.rotation_matrix(float(np.linalg.norm(pose[3:6])), pose[3:6] + 1e-12)[:3, :3]
         facing = fwd @ np.array([0.0, 0.0, 1.0])
@@ -144,10 +159,12 @@ class ClothRenderer:
         else:  # low-pass follow (about 1 s for the angle, 0.3 s for the position at 30 fps)
             self._yaw += 0.03 * math.remainder(yaw - self._yaw, 2 * math.pi)
             self._target = self._target + 0.12 * (root - self._target)
-        height = self.body.height
-        dist = 1.05 * height / (2.0 * math.tan(self.camera.yfov / 2.0)) + 0.3
+        span = max(1.05 * self.body.height, top + 0.08)  # floor to above the head or the raised hands
+        # the framing grows at once when a hand goes up and shrinks back in about a second
+        self._span = span if self._span is None or span > self._span else self._span + 0.05 * (span - self._span)
+        dist = self._span / (2.0 * math.tan(self.camera.yfov / 2.0)) + 0.3
         ang = self._yaw + self.azimuth
-        target = np.array([self._target[0], 0.52 * height, self._target[2]])
+        target = np.array([self._target[0], 0.5 * self._span, self._target[2]])
         eye = target + dist * np.array([math.sin(ang) * math.cos(0.2), math.sin(0.2), math.cos(ang) * math.cos(0.2)])
         self.scene.set_pose(self.camera_node, _look_at(eye, target))
         side = np.array([math.cos(ang), 0.0, -math.sin(ang)])  # to the camera's right
@@ -163,12 +180,20 @@ class ClothRenderer:
         a, b = capsules if capsules is not None else avatar_capsules(self.body, pose, self.limb_clearance)
         for c, node in enumerate(self.capsule_nodes):
             self.scene.set_pose(node, _align_z(a[c], b[c]))
+        if self.skin is not None:
+            if self.skin_node is not None:
+                self.scene.remove_node(self.skin_node)
+            v = pose_vertices(self.skin, self.body, pose, a, b)
+            body_mesh = trimesh.Trimesh(v, self.skin.faces, vertex_normals=vertex_normals(v, self.skin.faces),
+                                        process=False)
+            self.skin_node = self.scene.add(pyrender.Mesh.from_trimesh(body_mesh, material=self.skin_material,
+                                                                       smooth=True))
         if self.cloth_node is not None:
             self.scene.remove_node(self.cloth_node)
         tris = self.garment.triangles
         mesh = trimesh.Trimesh(cloth_x, tris, vertex_normals=vertex_normals(cloth_x, tris), process=False)
         self.cloth_node = self.scene.add(pyrender.Mesh.from_trimesh(mesh, material=self.cloth_material, smooth=True))
-        self._frame_camera(pose)
+        self._frame_camera(pose, float(max(a[:, 1].max(), b[:, 1].max()) + self.body.capsule_radii.max()))
         colour, _ = self.renderer.render(self.scene)
         return np.ascontiguousarray(colour[..., :3])
 

@@ -7,8 +7,9 @@ closed, smooth surface around them and moves it with the avatar:
 1. **Rest surface.** In the T-pose the signed distance to every tapered capsule (distance to its
    segment minus the radius interpolated along it) is combined by a polynomial *smooth minimum*
    (blend width ``blend_m``), so the limbs grow into the trunk with fillets instead of creases.
-   Its zero level set on a ``voxel_m`` grid is extracted by marching cubes (scikit-image) and
-   relaxed by a few Taubin smoothing steps (trimesh), which smooth without shrinking.
+   Its level set ``inset_m`` inside, on a ``voxel_m`` grid, is extracted by marching cubes
+   (scikit-image) and relaxed by a few Taubin smoothing steps (trimesh), which smooth without
+   shrinking.
 2. **Skinning weights.** Each vertex is bound to its ``bones`` nearest capsules, weighted by
    ``exp(-(d_c - d_min) / falloff_m)`` of its distance ``d_c`` to each capsule's surface, so it
    follows one capsule in the middle of a limb and blends two across a joint.
@@ -96,8 +97,8 @@ def _smooth_min(d: F64, k: float) -> F64:
     return out
 
 
-def build_skinned_mesh(body: Body, voxel_m: float = 0.02, blend_m: float = 0.04, falloff_m: float = 0.015,
-                       bones: int = 3, smoothing: int = 8) -> SkinnedMesh:
+def build_skinned_mesh(body: Body, voxel_m: float = 0.02, blend_m: float = 0.03, falloff_m: float = 0.015,
+                       bones: int = 3, smoothing: int = 8, inset_m: float = 0.005) -> SkinnedMesh:
     """The skinned surface around ``body``'s capsules (module docstring).
 
     Parameters
@@ -114,6 +115,9 @@ def build_skinned_mesh(body: Body, voxel_m: float = 0.02, blend_m: float = 0.04,
         Capsules per vertex.
     smoothing : int
         Taubin smoothing iterations.
+    inset_m : float
+        The surface is drawn this far inside the capsules' smooth union: the fillets bulge up to
+        ``blend_m / 4`` beyond the capsules the cloth collides with, and must not show through it.
 
     Returns
     -------
@@ -131,7 +135,7 @@ def build_skinned_mesh(body: Body, voxel_m: float = 0.02, blend_m: float = 0.04,
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     sdf = np.concatenate([_smooth_min(_capsule_distance(chunk, a, b, radii), blend_m)
                           for chunk in np.array_split(grid, max(1, len(grid) // 65536))])
-    verts, faces, _, _ = marching_cubes(sdf.reshape([len(x) for x in axes]), level=0.0,
+    verts, faces, _, _ = marching_cubes(sdf.reshape([len(x) for x in axes]), level=-inset_m,
                                         spacing=(voxel_m,) * 3)
     mesh = trimesh.Trimesh(verts + lo, faces, process=True)  # merged vertices
     if mesh.volume < 0:  # outward normals

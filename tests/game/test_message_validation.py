@@ -51,7 +51,8 @@ def _client() -> tuple[GameClient, _Out]:
 def _frames(name: str, seq0: int = 0, t0: float = 0.0) -> list[PoseFrame]:
     m = variant_motion(name)
     joints = fk(m.poses, m.body)
-    return [PoseFrame("t", seq0 + k, t0 + k / FPS, 0.0, 0.0, m.poses[k], joints[k], np.ones(15), 1.0, "replay", m.body.name)
+    return [PoseFrame("t", seq0 + k, t0 + k / FPS, 0.0, 0.0, m.poses[k], joints[k], np.ones(15), 1.0, "replay",
+                      m.body.name)
             for k in range(len(m.poses))]
 
 

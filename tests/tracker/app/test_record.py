@@ -57,7 +57,8 @@ def _poses(n: int, body: Body, seed: int = 3) -> np.ndarray:
 
 def _frames(poses: np.ndarray, body: Body, tid: str = "rec") -> list[PoseFrame]:
     joints = fk(poses, body)
-    return [PoseFrame(tracker_id=tid, seq=k, capture_ts=10.0 + k / 30.0, publish_ts=time.time(), capture_wall_ts=1_700_000_000.0,
+    return [PoseFrame(tracker_id=tid, seq=k, capture_ts=10.0 + k / 30.0, publish_ts=time.time(),
+                      capture_wall_ts=1_700_000_000.0,
                       pose=poses[k].astype(np.float32), joints=joints[k].astype(np.float32),
                       visibility=np.ones(N_PARTS, np.float32), confidence=0.5 + 0.01 * k, estimator="tree",
                       body_model=body.name) for k in range(len(poses))]

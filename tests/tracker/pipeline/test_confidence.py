@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -22,7 +23,7 @@ def test_expected_error_is_the_move_and_the_readings_sigma_in_quadrature(rng: np
 def test_confidence_falls_with_the_expected_error_and_falls_back_to_the_silhouette() -> None:
     errors = [0.0, 0.05, CONFIDENCE_SCALE_M, 0.2, 0.4]
     conf = [pose_confidence(e, silhouette=0.3) for e in errors]
-    assert conf[0] == 1.0 and all(a > b for a, b in zip(conf, conf[1:], strict=False))
+    assert conf[0] == 1.0 and all(a > b for a, b in itertools.pairwise(conf))
     assert conf[2] == pytest.approx(math.exp(-0.5))
     assert all(0.0 <= c <= 1.0 for c in conf)
     assert pose_confidence(math.nan, silhouette=0.3) == 0.3  # no reading: the silhouette match

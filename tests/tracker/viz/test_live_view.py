@@ -41,7 +41,8 @@ JOINTS = fk(POSE, BODY)
 
 
 def _pose(seq: int) -> PoseFrame:
-    return PoseFrame(tracker_id="v1", seq=seq, capture_ts=seq / 30, publish_ts=time.time(), capture_wall_ts=time.time() - 0.02,
+    now = time.time()
+    return PoseFrame(tracker_id="v1", seq=seq, capture_ts=seq / 30, publish_ts=now, capture_wall_ts=now - 0.02,
                      pose=POSE.astype(np.float32), joints=JOINTS.astype(np.float32),
                      visibility=np.ones(N_PARTS, np.float32), confidence=0.8, estimator="tree", body_model="mMA")
 

@@ -38,7 +38,7 @@ __all__ = ["ESTIMATOR_NAMES", "PLOTS", "TAKES", "BenchOptions", "host_probe", "m
            "run_bench", "write_outputs"]
 
 #: The estimators a benchmark can name (``make_estimator``'s and ``elmo-lite``).
-ESTIMATOR_NAMES = ("tree", "condensation", "drs", "srs", "elmo", "elmo-lite")
+ESTIMATOR_NAMES = ("tree", "condensation", "drs", "srs", "elmo", "elmo-lite", "drs-cardbox", "srs-cardbox")
 #: The takes of the small database (the test suite's ``small_db``); the first is the default clip.
 TAKES = ("dataset-2_raise-up-both-hands_normal_001.bvh", "dataset-2_raise-up-both-hands_active_062.bvh",
          "dataset-2_raise-up-right-hand_normal_001.bvh", "dataset-1_bye_normal_001.bvh")

@@ -106,7 +106,7 @@ class TrackerOptions:
     body: str = "auto"
     measurements: str | None = None
     subject_allowed: bool = False
-    estimator: Literal["tree", "condensation", "drs", "srs", "elmo"] = "tree"
+    estimator: Literal["tree", "condensation", "drs", "srs", "elmo", "drs-cardbox", "srs-cardbox"] = "tree"
     distance: Literal["nwxor", "cwxor", "xor"] = "xor"
     occlusion: bool = True
     max_heading_deg: float | None = None

@@ -2,7 +2,8 @@
 
 ``tree`` (Okada & Stenger's tree-based filter over the template hierarchy, the default),
 ``condensation`` (Isard & Blake's particle filter, the baseline), ``drs`` / ``srs`` (the
-hierarchical particle filter of the cardbox paper with deterministic or stratified resampling) and
+hierarchical particle filter of the cardbox paper with deterministic or stratified resampling;
+``drs-cardbox`` / ``srs-cardbox`` with the paper's 3D cardbox body model) and
 ``elmo`` (Demirdjian et al.'s exploration of likelihood modes: parameter-sensitive hashing over the
 database's leaves, local refinement, reweighting by a wide temporal prior).
 """
@@ -20,7 +21,7 @@ from tracker_service.estimators.tree_filter.model import FilterDB, FilterParams
 __all__ = ["ESTIMATORS", "make_estimator"]
 
 #: The estimators ``--estimator`` accepts.
-ESTIMATORS = ("tree", "condensation", "drs", "srs", "elmo")
+ESTIMATORS = ("tree", "condensation", "drs", "srs", "elmo", "drs-cardbox", "srs-cardbox")
 
 
 def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: FilterParams,
@@ -54,10 +55,13 @@ def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: 
         from tracker_service.estimators.condensation import Condensation
 
         return Condensation(body, camera, rng=rng)
-    if name == "drs" or name == "srs":
+    if name in ("drs", "srs", "drs-cardbox", "srs-cardbox"):
+        from tracker_service.body.cardbox import CardboxModel
         from tracker_service.estimators.hierarchical_pf import HierarchicalPF, HPFParams
 
-        return HierarchicalPF(body, camera, HPFParams(resampling="drs" if name == "drs" else "srs"), rng=rng)
+        cardbox = CardboxModel.from_body(body) if name.endswith("-cardbox") else None
+        return HierarchicalPF(body, camera, HPFParams(resampling="drs" if name.startswith("drs") else "srs",
+                                                      cardbox=cardbox), rng=rng)
     if name == "elmo":
         from tracker_service.estimators.elmo import Elmo
 

@@ -36,11 +36,13 @@ from numpy.typing import NDArray
 
 from protocol.kinematics import fk
 from protocol.skeleton import Body
+from tracker_service.body.cardbox import CardboxModel, cardbox_quads, cardbox_sums
 from tracker_service.body.raster import render_silhouettes, silhouette_runs_batch
 from tracker_service.camera import Camera
 from tracker_service.silhouette.features import LevelFeatures
 
 __all__ = [
+    "CardboxLikelihood",
     "Likelihood",
     "PoseLikelihood",
     "level_camera",
@@ -151,9 +153,13 @@ class PoseLikelihood:
         """Distances ``d`` at the likelihood's level as full-resolution pixel counts
         (``d |w|`` times the area ratio of the finest level to this one): the XOR pixel count of
         the cardbox paper's costs when the observation is XOR."""
-        feat, fine = features[self.level], features[-1]
-        ratio = (fine.shape[0] * fine.shape[1]) / (feat.shape[0] * feat.shape[1])
-        return np.asarray(d, np.float64) * feat.window_area * ratio
+        return _full_resolution_pixels(self.level, d, features)
+
+
+def _full_resolution_pixels(level: int, d: NDArray[np.float64], features: list[LevelFeatures]) -> NDArray[np.float64]:
+    feat, fine = features[level], features[-1]
+    ratio = (fine.shape[0] * fine.shape[1]) / (feat.shape[0] * feat.shape[1])
+    return np.asarray(d, np.float64) * feat.window_area * ratio
 
 
 def placement_of_root(root: NDArray[np.float64], root_ref: NDArray[np.float64], camera: Camera) -> NDArray[np.float64]:
@@ -175,3 +181,39 @@ def placement_of_root(root: NDArray[np.float64], root_ref: NDArray[np.float64], 
     u_ref, v_ref = camera.project(np.asarray(root_ref, np.float64))
     s = float(camera.depth(root_ref)) / max(float(camera.depth(root)), 1e-6)
     return np.array([u - camera.cx - s * (u_ref - camera.cx), v - camera.cy - s * (v_ref - camera.cy), s])
+
+
+@dataclass(frozen=True)
+class CardboxLikelihood:
+    """:class:`PoseLikelihood` with the cardbox paper's 3D cardbox model
+    (:mod:`tracker_service.body.cardbox`) drawn instead of the capsule body: eq. 2's cost, the
+    observation's per-pixel image summed over the union of the projected patches.
+
+    Attributes
+    ----------
+    model : CardboxModel
+    camera : Camera
+    level, sigma
+        As :class:`PoseLikelihood`.
+    """
+
+    model: CardboxModel
+    camera: Camera
+    level: int = 1
+    sigma: float = 0.01
+
+    @property
+    def body(self) -> Body:
+        return self.model.body
+
+    def __call__(self, poses: NDArray[np.float64], features: list[LevelFeatures]) -> Likelihood:
+        p = np.atleast_2d(np.asarray(poses, np.float64))
+        feat = features[self.level]
+        a = np.ascontiguousarray(np.diff(feat.integral, axis=1), np.float64)
+        quads = cardbox_quads(self.model, p, level_camera(self.camera, feat))
+        d = (cardbox_sums(quads, a, np.zeros(a.shape, np.bool_)) + feat.b) / feat.window_area
+        return Likelihood(d, 0.5 * (d / self.sigma) ** 2, len(p))
+
+    def full_resolution_pixels(self, d: NDArray[np.float64], features: list[LevelFeatures]) -> NDArray[np.float64]:
+        """As :meth:`PoseLikelihood.full_resolution_pixels`."""
+        return _full_resolution_pixels(self.level, d, features)

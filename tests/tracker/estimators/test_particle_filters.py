@@ -185,3 +185,18 @@ def test_hierarchical_pf_tracks_an_arm_raise(small_db, kind: str) -> None:  # ty
     _, body, _, _, _ = small_db
     err = _track(HierarchicalPF(body, default_camera(), HPFParams(kind), np.random.default_rng(0)), small_db)
     assert err < (0.20 if kind == "drs" else 0.26)
+
+
+@pytest.mark.parametrize("kind", ["drs", "srs"])
+def test_hierarchical_pf_with_the_cardbox_model_tracks_an_arm_raise(small_db, kind: str) -> None:  # type: ignore[no-untyped-def]
+    """The paper's 3D cardbox model in the likelihood (its sizes fitted on the first frame by
+    Algorithm 1), tracking the capsule body's silhouettes. Measured drs 0.138 m, srs 0.178 m (seed 0);
+    the capsule likelihood's drs 0.091 m: the frames are the capsule body's, which the cardbox is not."""
+    from tracker_service.body.cardbox import CardboxModel
+
+    _, body, _, _, _ = small_db
+    pf = HierarchicalPF(body, default_camera(), HPFParams(kind, cardbox=CardboxModel.from_body(body)),
+                        np.random.default_rng(0))
+    assert pf.name == f"{kind}-cardbox"
+    err = _track(pf, small_db)
+    assert err < (0.22 if kind == "drs" else 0.28)

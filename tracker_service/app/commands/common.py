@@ -11,6 +11,7 @@ import argparse
 from protocol.wire.keys import validate_id
 from tracker_service.app.options import TrackerOptions, ZenohOptions
 from tracker_service.app.resources import default_script_dirs
+from tracker_service.estimators import ESTIMATORS
 
 __all__ = [
     "UsageError",
@@ -127,9 +128,10 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
                         "shoulder=M (joint spacing), arm=RATIO, leg=RATIO (1.0 = the family's proportions)"
                         + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
                            if subject else ""))
-    p.add_argument("--estimator", choices=["tree", "condensation", "drs", "srs", "elmo"], default="tree",
+    p.add_argument("--estimator", choices=list(ESTIMATORS), default="tree",
                    help="pose estimator: tree (Okada & Stenger's tree filter), condensation (1000 particles), "
-                        "drs / srs (hierarchical particle filter, deterministic / stratified resampling), "
+                        "drs / srs (hierarchical particle filter, deterministic / stratified resampling; "
+                        "drs-cardbox / srs-cardbox with the paper's 3D cardbox body model), "
                         "elmo (likelihood modes: hashing, local search, wide temporal prior) (default: tree)")
     p.add_argument("--distance", choices=["nwxor", "cwxor", "xor"], default="xor",
                    help="silhouette distance (default: xor, the most accurate in our measurements; the "

@@ -39,23 +39,26 @@ Every candidate pose is clipped to the joint limits (:func:`protocol.skeleton.cl
 is evaluated; joints in no partition (clavicles, wrists, neck, head, ankles) stay at the reference
 posture.
 
-**Not implemented**: the paper's 3D cardbox body model (planar boxes per segment) and its offline
-size estimation (Algorithm 1, eq. 5-6): the likelihood renders this project's capsule body of the
-database instead.
+The likelihood renders this project's capsule body by default; with ``HPFParams.cardbox`` (the
+``drs-cardbox`` and ``srs-cardbox`` estimators) it draws the paper's 3D cardbox model
+(:mod:`tracker_service.body.cardbox`), its sizes from the paper's offline initialisation
+(Algorithm 1, :func:`tracker_service.body.cardbox_fit.fit_sizes`) when reference images are given.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from protocol.skeleton import Body, clamp_pose
+from tracker_service.body.cardbox import CardboxModel
+from tracker_service.body.cardbox_fit import FitParams, fit_sizes
 from tracker_service.camera import Camera
 from tracker_service.estimators.base import Estimate, Observation
-from tracker_service.estimators.likelihood import PoseLikelihood
+from tracker_service.estimators.likelihood import CardboxLikelihood, PoseLikelihood
 from tracker_service.estimators.particles import joint_slice, make_estimate, reference_pose
 from tracker_service.estimators.resampling import deterministic_resample, stratified_resample
 
@@ -143,6 +146,14 @@ class HPFParams:
         per camera frame.
     confidence_scale : float
         ``c`` of the reported confidence (the tree filter's).
+    cardbox : CardboxModel, optional
+        Draw the paper's 3D cardbox model (:mod:`tracker_service.body.cardbox`) instead of the
+        capsule body.
+    fit : FitParams, optional
+        With the cardbox: on the first frame its sizes are fitted by the paper's Algorithm 1
+        (:func:`tracker_service.body.cardbox_fit.fit_sizes`) with that frame as the reference
+        image and the reference posture (standing, at the observed placement) as its known
+        posture, as the paper's person stands in it to start; None: the initial guess is kept.
     """
 
     resampling: Resampling = "drs"
@@ -151,6 +162,8 @@ class HPFParams:
     systematic: bool = False
     cycles: int = 1
     confidence_scale: float = 0.05
+    cardbox: CardboxModel | None = None
+    fit: FitParams | None = field(default_factory=FitParams)
 
     @property
     def n_particles(self) -> int:
@@ -172,6 +185,8 @@ class HPFState:
     rng : Generator
     placement : (3,) float64 or None
         Where to initialise when a frame has no observed placement.
+    cardbox : CardboxModel or None
+        The cardbox model as fitted on the first frame (None: the filter's own).
     """
 
     pose: NDArray[np.float64] | None
@@ -179,6 +194,7 @@ class HPFState:
     costs: tuple[NDArray[np.float64], ...]
     rng: np.random.Generator
     placement: NDArray[np.float64] | None = None
+    cardbox: CardboxModel | None = None
 
 
 class HierarchicalPF:
@@ -201,8 +217,10 @@ class HierarchicalPF:
         self.body, self.camera = body, camera
         self.params = params or HPFParams()
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.name = self.params.resampling
-        self.likelihood = PoseLikelihood(body, camera, self.params.level)
+        self.name = self.params.resampling + ("-cardbox" if self.params.cardbox is not None else "")
+        self.likelihood: PoseLikelihood | CardboxLikelihood = (
+            PoseLikelihood(body, camera, self.params.level) if self.params.cardbox is None
+            else CardboxLikelihood(self.params.cardbox, camera, self.params.level))
 
     def init(self, placement: NDArray[np.float64] | None = None) -> HPFState:
         """No particles yet: the next frame initialises every partition by eq. 7."""
@@ -229,11 +247,17 @@ class HierarchicalPF:
     def step(self, state: HPFState, observation: Observation) -> tuple[HPFState, Estimate]:
         """One frame: the partitions in order, each resampled, evaluated, its best kept."""
         rng = state.rng
+        likelihood, cardbox = self.likelihood, state.cardbox
         if state.pose is None:
             place = observation.placement if observation.placement is not None else state.placement
             pose = reference_pose(self.body, self.camera, place)
+            if self.params.cardbox is not None and self.params.fit is not None:  # Algorithm 1
+                cardbox, _ = fit_sizes(self.params.cardbox, [(observation.features, pose)], self.camera, rng,
+                                       self.params.fit)
         else:
             pose = state.pose.copy()
+        if cardbox is not None and isinstance(likelihood, CardboxLikelihood):
+            likelihood = replace(likelihood, model=cardbox)
         stages = self.params.stages
         parts: list[NDArray[np.float64] | None] = list(state.particles) if state.particles else [None] * len(stages)
         costs: list[NDArray[np.float64] | None] = list(state.costs) if state.costs else [None] * len(stages)
@@ -246,8 +270,8 @@ class HierarchicalPF:
                 full = np.repeat(pose[None], len(cand), axis=0)
                 full[:, dims] = cand
                 full = clamp_pose(full)
-                lik = self.likelihood(full, observation.features)
-                c = self.likelihood.full_resolution_pixels(lik.distance, observation.features)
+                lik = likelihood(full, observation.features)
+                c = likelihood.full_resolution_pixels(lik.distance, observation.features)
                 best = int(np.argmin(c))
                 pose = full[best]
                 dist = float(lik.distance[best])
@@ -256,4 +280,4 @@ class HierarchicalPF:
         est = make_estimate(pose, pose, dist, self.params.confidence_scale, tuple(evals), self.camera)
         new_parts = tuple(x for x in parts if x is not None)
         new_costs = tuple(x for x in costs if x is not None)
-        return HPFState(pose, new_parts, new_costs, rng, state.placement), est
+        return HPFState(pose, new_parts, new_costs, rng, state.placement, cardbox), est

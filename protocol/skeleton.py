@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "CAPSULES",
+    "CAPSULE_OWNER",
     "END_JOINTS",
     "JOINT_INDEX",
     "JOINT_NAMES",
@@ -127,6 +128,19 @@ CAPSULE_JOINTS: Final[NDArray[np.int64]] = np.array(
     [[JOINT_INDEX[a], JOINT_INDEX[b]] for _, _, a, b in CAPSULES], dtype=np.int64
 )
 CAPSULE_PART: Final[NDArray[np.int64]] = np.array([PARTS.index(p) for _, p, _, _ in CAPSULES], dtype=np.int64)
+
+
+def _ancestors(j: int) -> list[int]:
+    out = [j]
+    while PARENTS[out[-1]] >= 0:
+        out.append(PARENTS[out[-1]])
+    return out
+
+
+#: The joint whose frame carries each capsule: the deepest common ancestor of its two ends (the
+#: first end for a bone; the chest for the shoulders' bar, the pelvis for the hips').
+CAPSULE_OWNER: Final[NDArray[np.int64]] = np.array(
+    [next(j for j in _ancestors(int(a)) if j in _ancestors(int(b))) for a, b in CAPSULE_JOINTS], dtype=np.int64)
 
 #: Joint limits, degrees, on the rotation-vector components (x, y, z) of each left/midline joint;
 #: right joints mirror them (x kept, y and z negated). The root is unlimited.

@@ -30,24 +30,11 @@ from numpy.typing import NDArray
 from skimage.measure import marching_cubes
 
 from protocol.kinematics import fk_global
-from protocol.skeleton import CAPSULE_JOINTS, N_CAPSULES, PARENTS, Body, rest_pose
+from protocol.skeleton import CAPSULE_JOINTS, CAPSULE_OWNER, N_CAPSULES, Body, rest_pose
 
-__all__ = ["SkinnedMesh", "build_skinned_mesh", "capsule_frames", "pose_vertices"]
+__all__ = ["CAPSULE_OWNER", "SkinnedMesh", "build_skinned_mesh", "capsule_frames", "pose_vertices"]
 
 F64 = NDArray[np.float64]
-
-
-def _ancestors(j: int) -> list[int]:
-    out = [j]
-    while PARENTS[out[-1]] >= 0:
-        out.append(PARENTS[out[-1]])
-    return out
-
-
-#: The joint whose frame carries each capsule: the deepest common ancestor of its two ends (the
-#: first end for a bone; the chest for the shoulders' bar, the pelvis for the hips').
-CAPSULE_OWNER: tuple[int, ...] = tuple(
-    next(j for j in _ancestors(int(a)) if j in _ancestors(int(b))) for a, b in CAPSULE_JOINTS)
 
 
 @dataclass(frozen=True)
@@ -185,7 +172,7 @@ def capsule_frames(mesh: SkinnedMesh, body: Body, pose: F64, a: F64 | None = Non
     joints, glob = fk_global(np.asarray(pose, np.float64), body)
     if a is None or b is None:
         a, b = joints[CAPSULE_JOINTS[:, 0]], joints[CAPSULE_JOINTS[:, 1]]
-    rot = glob[list(CAPSULE_OWNER)]
+    rot = glob[CAPSULE_OWNER]
     rest_axis = mesh.rest_b - mesh.rest_a
     now = np.einsum("cij,cj->ci", rot, rest_axis)
     target = b - a

@@ -28,7 +28,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from protocol.kinematics import fk_global
-from protocol.skeleton import CAPSULE_INDEX, CAPSULE_JOINTS, N_CAPSULES, PARENTS, Body
+from protocol.skeleton import CAPSULE_INDEX, CAPSULE_JOINTS, CAPSULE_OWNER, N_CAPSULES, Body
 from tracker_service.camera import Camera
 
 __all__ = [
@@ -41,15 +41,8 @@ __all__ = [
 ]
 
 
-def _ancestors(j: int) -> list[int]:
-    out = [j]
-    while PARENTS[out[-1]] >= 0:
-        out.append(PARENTS[out[-1]])
-    return out
-
-
-#: The joint whose frame carries each part (the deepest common ancestor of its two ends).
-PART_OWNER = np.array([next(j for j in _ancestors(int(a)) if j in _ancestors(int(b))) for a, b in CAPSULE_JOINTS])
+#: The joint whose frame carries each part.
+PART_OWNER = CAPSULE_OWNER
 #: Parts drawn with a third patch across the axis (the paper's torso).
 THREE_PATCHES = (CAPSULE_INDEX["abdomen"], CAPSULE_INDEX["thorax"])
 N_PATCHES = 2 * N_CAPSULES + len(THREE_PATCHES)

@@ -146,6 +146,15 @@ def _edge(px: float, py: float, x0: float, y0: float, x1: float, y1: float) -> f
 _edge_jit = njit(cache=True, inline="always")(_edge)
 
 
+@njit(cache=True, inline="always")
+def _inside(c: NDArray[np.float64], sgn: float, x: int, y: int) -> bool:
+    for e in range(4):
+        f = (e + 1) % 4
+        if sgn * _edge_jit(float(x), float(y), c[e, 0], c[e, 1], c[f, 0], c[f, 1]) < 0.0:
+            return False
+    return True
+
+
 @njit(cache=True, nogil=True)
 def cardbox_sums(quads: NDArray[np.float64], a: NDArray[np.float64], mark: NDArray[np.bool_]) -> NDArray[np.float64]:
     """``sum(a)`` over each pose's silhouette, the union of its quadrilaterals (numba).
@@ -172,30 +181,47 @@ def cardbox_sums(quads: NDArray[np.float64], a: NDArray[np.float64], mark: NDArr
         count = 0
         for k in range(q):
             c = quads[i, k]
-            if not np.isfinite(c).all():
-                continue
             area = 0.0
+            xmin = ymin = np.inf
+            xmax = ymax = -np.inf
             for e in range(4):
                 f = (e + 1) % 4
                 area += c[e, 0] * c[f, 1] - c[f, 0] * c[e, 1]
-            if area == 0.0:
+                xmin, xmax = min(xmin, c[e, 0]), max(xmax, c[e, 0])
+                ymin, ymax = min(ymin, c[e, 1]), max(ymax, c[e, 1])
+            if not np.isfinite(area) or area == 0.0:  # behind the camera (NaN), or edge-on
                 continue
             sgn = 1.0 if area > 0 else -1.0
-            x0 = max(int(np.ceil(c[:, 0].min())), 0)
-            x1 = min(int(np.floor(c[:, 0].max())), w - 1)
-            y0 = max(int(np.ceil(c[:, 1].min())), 0)
-            y1 = min(int(np.floor(c[:, 1].max())), h - 1)
+            x0 = max(int(np.ceil(xmin)), 0)
+            x1 = min(int(np.floor(xmax)), w - 1)
+            y0 = max(int(np.ceil(ymin)), 0)
+            y1 = min(int(np.floor(ymax)), h - 1)
+            if x0 > x1 or y0 > y1:
+                continue
             for y in range(y0, y1 + 1):
-                for x in range(x0, x1 + 1):
-                    if mark[y, x]:
-                        continue
-                    inside = True
-                    for e in range(4):
-                        f = (e + 1) % 4
-                        if sgn * _edge_jit(float(x), float(y), c[e, 0], c[e, 1], c[f, 0], c[f, 1]) < 0.0:
-                            inside = False
-                            break
-                    if inside:
+                # the row's span from the four edges' lines, then its ends settled by the exact
+                # per-pixel test (the reference's), so rounding in the division changes nothing
+                lo, hi = float(x0), float(x1)
+                for e in range(4):
+                    f = (e + 1) % 4
+                    ka = -sgn * (c[f, 1] - c[e, 1])  # sgn * edge(x, y) = ka * x + kb
+                    kb = sgn * ((c[f, 0] - c[e, 0]) * (y - c[e, 1]) + (c[f, 1] - c[e, 1]) * c[e, 0])
+                    if ka > 0.0:
+                        lo = max(lo, -kb / ka)
+                    elif ka < 0.0:
+                        hi = min(hi, -kb / ka)
+                    elif kb < 0.0:
+                        hi = lo - 1.0
+                if hi < lo - 1.0:
+                    continue
+                xa = max(x0, int(np.floor(lo)) - 1)
+                xb = min(x1, int(np.ceil(hi)) + 1)
+                while xa <= xb and not _inside(c, sgn, xa, y):
+                    xa += 1
+                while xb >= xa and not _inside(c, sgn, xb, y):
+                    xb -= 1
+                for x in range(xa, xb + 1):
+                    if not mark[y, x]:
                         mark[y, x] = True
                         ys[count] = y
                         xs[count] = x

@@ -3,9 +3,12 @@
 The client subscribes to ``mocap/tracker/<id>/pose`` and ``.../body`` with channel subscribers
 (polled with ``try_recv``; no callback entity outlives the session, see :mod:`protocol.net.session`),
 asks for the ``BodyInfo`` with a ``get`` until one arrives, then drives a
-:class:`~cloth_client.solver.driver.ClothDriver` with every pose. When it falls behind it skips to the
-newest pose (the driver interpolates across the gap like a dropped frame). Optionally it renders
-frames (PNG directory and/or video) and publishes the cloth vertices on ``mocap/cloth/<id>/mesh``.
+:class:`~cloth_client.solver.driver.ClothDriver` with every pose: it simulates every pose received
+since its last look, in order, and renders / publishes the newest of each batch, so the view runs
+at what the machine allows and the simulation misses no pose. Only poses more than
+:data:`MAX_BACKLOG_S` behind the newest are skipped (the driver interpolates across the gap like a
+dropped frame), so a client slower than real time catches up. Optionally it renders frames (PNG
+directory and/or video) and publishes the cloth vertices on ``mocap/cloth/<id>/mesh``.
 
 Mesh message
 ------------
@@ -61,8 +64,8 @@ from protocol.wire.media import ClothMesh, encode_cloth_mesh
 from protocol.wire.messages import BodyInfo, PoseFrame
 from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame
 
-__all__ = ["MAX_SUBSTEPS_PER_FRAME", "OVER_BUDGET_LIMIT", "STEP_BUDGET_S", "TOPOLOGY_EVERY", "ClothClient",
-           "LiveOptions", "LiveResult", "mesh_message", "run_live"]
+__all__ = ["MAX_BACKLOG_S", "MAX_SUBSTEPS_PER_FRAME", "OVER_BUDGET_LIMIT", "STEP_BUDGET_S", "TOPOLOGY_EVERY",
+           "ClothClient", "LiveOptions", "LiveResult", "mesh_message", "run_live"]
 
 log = logging.getLogger(__name__)
 #: The mesh message carries the triangles in its first message and then every this many messages.
@@ -74,6 +77,9 @@ _BODY_RETRY_S: Final[float] = 1.0
 MAX_SUBSTEPS_PER_FRAME: Final[int] = 256
 #: Wall-clock budget of one simulated frame, seconds.
 STEP_BUDGET_S: Final[float] = 2.0
+#: Poses further behind the newest received than this (stream seconds) are skipped, not simulated:
+#: a client slower than real time catches up instead of falling further behind.
+MAX_BACKLOG_S: Final[float] = 0.5
 #: Consecutive frames over budget after which the cloth is switched off until another body arrives.
 OVER_BUDGET_LIMIT: Final[int] = 3
 
@@ -305,20 +311,27 @@ class ClothClient:
 
     def on_poses(self, payloads: list[bytes], now: float | None = None) -> bool:
         """Handle the pose payloads received since the last call (oldest first): each goes through
-        the checks and the clock, the newest accepted one is simulated. True if a frame was simulated."""
-        newest: tuple[PoseFrame, float] | None = None
-        n_ok = 0
-        for data in payloads:
-            got = self.accept(data, now)
-            if got is not None:
-                newest, n_ok = got, n_ok + 1
-        self.result.skipped_behind += max(n_ok - 1, 0)
-        if newest is None or self.driver is None or self.outputs is None:
+        the checks and the clock, and every accepted one within :data:`MAX_BACKLOG_S` of the newest
+        is simulated, in order; only the last is rendered and published (the view runs at what the
+        machine allows, the simulation misses no pose). Older ones are skipped (counted as
+        ``skipped_behind``; the driver interpolates across the gap like a dropped frame). True if a
+        frame was simulated."""
+        accepted = [got for data in payloads if (got := self.accept(data, now)) is not None]
+        if not accepted or self.driver is None or self.outputs is None:
             return False  # nothing usable, or no body yet
-        return self.simulate(*newest)
+        newest = accepted[-1][0].capture_ts
+        keep = [g for g in accepted if newest - g[0].capture_ts <= MAX_BACKLOG_S]
+        self.result.skipped_behind += len(accepted) - len(keep)
+        stepped = False
+        for i, (frame, sim_t) in enumerate(keep):
+            if self.driver is None:  # switched off over its budget
+                break
+            stepped = self.simulate(frame, sim_t, emit=i == len(keep) - 1) or stepped
+        return stepped
 
-    def simulate(self, frame: PoseFrame, sim_t: float) -> bool:
-        """Advance the cloth to ``frame`` at ``sim_t`` (solver clock); True if a step was taken."""
+    def simulate(self, frame: PoseFrame, sim_t: float, emit: bool = True) -> bool:
+        """Advance the cloth to ``frame`` at ``sim_t`` (solver clock); True if a step was taken.
+        ``emit``: render and publish this frame (the newest of a batch)."""
         driver, outputs, result = self.driver, self.outputs, self.result
         assert driver is not None and outputs is not None
         t0 = time.perf_counter()
@@ -344,7 +357,7 @@ class ClothClient:
         result.resets += int(stats.reset)
         result.max_strain = max(result.max_strain, stats.max_strain)
         result.max_penetration_mm = max(result.max_penetration_mm, 1000.0 * stats.max_penetration)
-        if self.outputs is not None:
+        if self.outputs is not None and emit:
             self.outputs.emit(frame, result)
         return True
 

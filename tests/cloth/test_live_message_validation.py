@@ -216,3 +216,21 @@ def test_real_solver_survives_the_hostile_messages() -> None:
     assert time.monotonic() - t0 < 60
     assert client.result.max_strain < 0.10
     client.close()
+
+
+def test_every_pose_of_a_batch_is_simulated_unless_it_is_too_far_behind() -> None:
+    """Poses that piled up while the client rendered are all simulated, in order; only those more
+    than ``MAX_BACKLOG_S`` behind the newest are skipped."""
+    client, made = _client()
+    assert client.on_body(encode(INFO))
+    now = _stream(client, 30)
+    d, = made
+    fed = len(d.fed)
+    assert client.on_poses([encode(_frame(30 + k, (30 + k) / FPS)) for k in range(6)], now + 0.2)
+    assert len(d.fed) == fed + 6 and client.result.skipped_behind == 0
+    times = _solver_times(d)
+    assert (np.diff(times) > 0).all()
+    batch = [encode(_frame(36 + k, (36 + k) / FPS)) for k in range(30)]  # a second's worth at once
+    assert client.on_poses(batch, now + 1.2)
+    kept = int(np.floor(live.MAX_BACKLOG_S * FPS + 1e-9)) + 1
+    assert len(d.fed) == fed + 6 + kept and client.result.skipped_behind == 30 - kept

@@ -203,7 +203,7 @@ def _resolve_reference(x: F64, v: F64, free: NDArray[np.bool_], a0: F64, b0: F64
 def broad_phase_reference(x: F64, free: NDArray[np.bool_], a: F64, b: F64, radii: F64,
                           reach: float) -> NDArray[np.int64]:
     """Candidate capsules of every particle as bit masks (reference of
-    :func:`cloth_client.contact.response_kernels.broad_phase`).
+    :func:`cloth_client.contact.cone_kernels.broad_phase`).
 
     Parameters
     ----------
@@ -219,14 +219,10 @@ def broad_phase_reference(x: F64, free: NDArray[np.bool_], a: F64, b: F64, radii
     Returns
     -------
     (N,) int64
-        Bit ``c`` set where the particle is within ``reach`` of the capsule of radius
-        ``max(ra, rb)`` round the segment ``a[c] b[c]`` (a superset of the round cone).
+        Bit ``c`` set where the particle's signed distance to the round cone ``c`` is below ``reach``.
     """
-    u = b - a
-    t = np.clip(np.einsum("ncj,cj->nc", x[:, None] - a[None], u) / np.maximum(np.einsum("cj,cj->c", u, u), 1e-300),
-                0.0, 1.0)
-    q = x[:, None] - a[None] - t[..., None] * u[None]
-    near = (np.einsum("ncj,ncj->nc", q, q) < (radii.max(axis=1) + reach) ** 2) & free[:, None]
+    d, _, _ = round_cone_reference(x, a, b, radii[:, 0], radii[:, 1])
+    near = (d < reach) & free[:, None]
     out: NDArray[np.int64] = (near.astype(np.int64) << np.arange(len(a), dtype=np.int64)).sum(axis=1)
     return out
 

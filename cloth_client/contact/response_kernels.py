@@ -1,20 +1,31 @@
-"""Numba kernels of the collision response: broad phase, projection, friction, creases, straddles.
+"""Numba kernels of the collision response: projection, friction, creases, straddles.
 
 The plain numpy references are in :mod:`cloth_client.contact.response` (same rules, vectorised; its
-docstring describes them); tests hold both equal. The solver's substep kernel runs :func:`broad_phase`,
-:func:`collide` and :func:`release_straddles` in its loop.
+docstring describes them); tests hold both equal. The solver's substep kernel runs
+:func:`~cloth_client.contact.cone_kernels.broad_phase` (re-exported here), :func:`collide` and
+:func:`release_straddles` in its loop.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import cast
 
 import numpy as np
+from numba.cpython.unsafe.numbers import trailing_zeros
 from numpy.typing import NDArray
 
 from cloth_client._jit import inline_kernel as _inline
 from cloth_client._jit import jit_kernel as _jit
-from cloth_client.contact.cone_kernels import GEO_COLS, capsule_geometry, round_cone_geo
+from cloth_client.contact.cone_kernels import (
+    ALL_CAPSULES,
+    BROAD_SLACK,
+    GEO_COLS,
+    broad_phase,
+    capsule_geometry,
+    round_cone_geo,
+)
 
 __all__ = ["ALL_CAPSULES", "BROAD_SLACK", "COLLISION_PASSES", "CREASE_COS", "HIT_TOLERANCE", "PINCH_COS",
            "PINCH_DEPTH", "STRADDLE_DEPTH", "STRADDLE_SAMPLES", "broad_phase", "collide", "pinch_margin",
@@ -39,64 +50,11 @@ PINCH_DEPTH = 0.009
 #: the capsule's centre (3), the motion of its ends over the substep (``a1 - a0``, ``b1 - b0``), ``max(ra, rb)``.
 _CENTRE, _DA, _DB, _RMAX = 13, 16, 19, 22
 _COLLIDE_COLS = 23
+#: Index of the lowest set bit of a capsule mask (numba's count of trailing zeros; typed for mypy).
+_lowest_bit = cast(Callable[[int], int], trailing_zeros)
 #: A particle closer than the clearance by less than this (metres) counts as on the surface, not in
 #: contact (a projected particle re-measured at the clearance must not trigger another pass).
 HIT_TOLERANCE = 1e-9
-#: Candidate mask meaning "test every capsule" (all bits set).
-ALL_CAPSULES = -1
-#: Distance (metres) a particle may move from where its candidate capsules were gathered
-#: (:func:`broad_phase`) before :func:`collide` tests every capsule again for it.
-BROAD_SLACK = 0.02
-
-
-@_jit
-def broad_phase(x: F64, active: F64, a: F64, b: F64, radii: F64, reach: float, cand: NDArray[np.int64],
-                xb: F64) -> None:  # pragma: no cover
-    """Candidate capsules of every particle: bit ``c`` of ``cand[i]`` is set when particle ``i``
-    lies within ``reach`` of the capsule ``c`` of radius ``max(ra, rb)`` round the axis ``a[c] b[c]``
-    (which contains the round cone). ``xb`` receives the positions the mask was gathered at.
-    Reference: :func:`~cloth_client.contact.response.broad_phase_reference`.
-
-    Parameters
-    ----------
-    x : (N, 3) float64
-    active : (N,) float64
-        Particles with ``active <= 0`` get an empty mask.
-    a, b : (C, 3) float64
-    radii : (C, 2) float64
-    reach : float
-        Clearance plus slack, metres.
-    cand : (N,) int64
-        Output bit masks (:data:`ALL_CAPSULES` for every particle when ``C > 62``).
-    xb : (N, 3) float64
-        Output copy of ``x``.
-    """
-    n = x.shape[0]
-    for i in range(n):
-        cand[i] = 0 if a.shape[0] <= 62 else ALL_CAPSULES
-        xb[i, 0], xb[i, 1], xb[i, 2] = x[i, 0], x[i, 1], x[i, 2]
-    if a.shape[0] > 62:
-        return
-    for c in range(a.shape[0]):
-        ax, ay, az = a[c, 0], a[c, 1], a[c, 2]
-        ux, uy, uz = b[c, 0] - ax, b[c, 1] - ay, b[c, 2] - az
-        inv = 1.0 / max(ux * ux + uy * uy + uz * uz, 1e-300)
-        r = max(radii[c, 0], radii[c, 1]) + reach
-        r2 = r * r
-        bit = np.int64(1) << np.int64(c)
-        # the capsule's bounding box grown by r: a particle outside it is farther than r from the axis
-        lo0, hi0 = min(ax, b[c, 0]) - r, max(ax, b[c, 0]) + r
-        lo1, hi1 = min(ay, b[c, 1]) - r, max(ay, b[c, 1]) + r
-        lo2, hi2 = min(az, b[c, 2]) - r, max(az, b[c, 2]) + r
-        for i in range(n):
-            if (x[i, 0] < lo0 or x[i, 0] > hi0 or x[i, 1] < lo1 or x[i, 1] > hi1
-                    or x[i, 2] < lo2 or x[i, 2] > hi2):
-                continue
-            px, py, pz = x[i, 0] - ax, x[i, 1] - ay, x[i, 2] - az
-            t = min(max((px * ux + py * uy + pz * uz) * inv, 0.0), 1.0)
-            qx, qy, qz = px - t * ux, py - t * uy, pz - t * uz
-            if qx * qx + qy * qy + qz * qz < r2 and active[i] > 0.0:
-                cand[i] |= bit
 
 
 @_inline
@@ -194,9 +152,10 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, margin: float, friction
     floor), then friction or, if pinched, the stoutest touched part's velocity; True if pinched.
     ``geo``: :func:`collide`'s per-capsule table. Only the capsules in ``mask0`` (the
     particle's :func:`broad_phase` mask) are tested while the particle is within ``slack`` of ``b``
-    (where the mask was gathered; every capsule otherwise). A particle found past the capsule's axis
-    from ``q`` (where it was at the start of the substep) carried along with the capsule goes back
-    to that side (:func:`_side`).
+    (where the mask was gathered; every capsule otherwise, from the capsule that pushed it past the
+    slack on: the others cannot be within reach, so the result is that of testing every capsule).
+    A particle found past the capsule's axis from ``q`` (where it was at the start of the substep)
+    carried along with the capsule goes back to that side (:func:`_side`).
 
     Each array handed to an inlined helper with loops costs a reference-count increment and
     decrement per call: the broad-phase data and the start position come in as numbers, the
@@ -214,9 +173,18 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, margin: float, friction
         moved = False
         ox, oy, oz = x[i, 0] - bx, x[i, 1] - by, x[i, 2] - bz
         mask = mask0 if ox * ox + oy * oy + oz * oz <= slack * slack else ALL_CAPSULES
-        for c in range(n_caps):
-            if c < 63 and (mask >> c) & 1 == 0:
-                continue
+        left = mask  # candidates not visited yet
+        c = -1
+        while True:  # the capsules in ``mask`` in increasing order
+            if mask == ALL_CAPSULES:
+                c += 1
+                if c >= n_caps:
+                    break
+            else:  # the set bits only, lowest first (most masks hold one or two of the capsules)
+                if left == 0:
+                    break
+                c = _lowest_bit(left)
+                left &= left - 1
             ex, ey, ez = x[i, 0] - geo[c, _CENTRE], x[i, 1] - geo[c, _CENTRE + 1], x[i, 2] - geo[c, _CENTRE + 2]
             if ex * ex + ey * ey + ez * ez > geo[c, 11] * geo[c, 11]:
                 continue
@@ -239,6 +207,9 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, margin: float, friction
                 else:
                     pinched = True
                 moved = True
+                ox, oy, oz = x[i, 0] - bx, x[i, 1] - by, x[i, 2] - bz
+                if ox * ox + oy * oy + oz * oz > slack * slack:
+                    mask = ALL_CAPSULES  # pushed past the slack: the rest of the pass tests every capsule
         if use_floor and x[i, 1] < floor + margin - HIT_TOLERANCE:
             dv = _push(x, v, i, floor + margin - x[i, 1], 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
             _record(contact, i, n_caps, first, 0.0, 1.0, 0.0)
@@ -262,7 +233,8 @@ def _resolve(x: F64, v: F64, i: int, m: float, geo: F64, margin: float, friction
 @_jit
 def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, radii: F64,
             margin: float, friction: float, dt: float, floor: float, use_floor: bool,
-            contact: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64) -> None:  # pragma: no cover
+            contact: F64, cand: NDArray[np.int64], xb: F64, slack: float, xprev: F64,
+            touch: NDArray[np.bool_] | None = None) -> None:  # pragma: no cover
     """Project particles (those with ``active > 0``) out of the capsules ``(a1, b1)`` and the floor;
     same rules as :func:`cloth_client.contact.response.collide_reference`. ``xprev (N, 3)``: positions
     at the start of the substep (a particle that went through a capsule's axis since is put back on
@@ -280,7 +252,11 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
     A pinched particle in a crease narrower than twice the margin is resolved again from where it
     was with the clearance of :func:`pinch_margin` (half the gap, negative where the two overlap),
     so it fits in the gap; it keeps the velocity of the stoutest part of the first resolve (the
-    second may touch only one of the two surfaces, whose friction would drag it along)."""
+    second may touch only one of the two surfaces, whose friction would drag it along).
+
+    ``touch (N,) bool``, optional output: whether each particle's ``contact`` row is nonzero (the
+    flags :func:`~cloth_client.solver.strain_kernels.touching` computes, written here at the cost
+    of the particles resolved only)."""
     geo = np.empty((a1.shape[0], _COLLIDE_COLS))  # capsule_geometry's columns, then the ones of _resolve
     capsule_geometry(a1, b1, radii, margin, geo)
     centre = 0.5 * (a1 + b1)
@@ -296,22 +272,26 @@ def collide(x: F64, v: F64, active: F64, a0: F64, b0: F64, a1: F64, b1: F64, rad
                                 and not (use_floor and x[i, 1] < floor + margin - HIT_TOLERANCE)):
             for o in range(6):  # nothing within reach (the common case): no call, no contact
                 contact[i, o] = 0.0
+            if touch is not None:
+                touch[i] = False
             continue
         px, py, pz = x[i, 0], x[i, 1], x[i, 2]
         ux, uy, uz = v[i, 0], v[i, 1], v[i, 2]
         mask, bx, by, bz = cand[i], xb[i, 0], xb[i, 1], xb[i, 2]
         qx, qy, qz = xprev[i, 0], xprev[i, 1], xprev[i, 2]
-        if not _resolve(x, v, i, margin, geo, margin, friction, dt, floor, use_floor, contact, mask, bx, by, bz, slack,
-                        qx, qy, qz):
-            continue
-        m = pinch_margin(px, py, pz, geo, centre, margin)
-        if m < margin:  # a crease: start again with the clearance the gap leaves
-            hx, hy, hz = v[i, 0], v[i, 1], v[i, 2]  # the stoutest touched part's velocity
-            x[i, 0], x[i, 1], x[i, 2] = px, py, pz
-            v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
-            _resolve(x, v, i, m, geo, margin, friction, dt, floor, use_floor, contact, mask, bx, by, bz, slack, qx, qy,
-                     qz)
-            v[i, 0], v[i, 1], v[i, 2] = hx, hy, hz  # it is still in the crease, held by the stoutest part
+        if _resolve(x, v, i, margin, geo, margin, friction, dt, floor, use_floor, contact, mask, bx, by, bz, slack,
+                    qx, qy, qz):
+            m = pinch_margin(px, py, pz, geo, centre, margin)
+            if m < margin:  # a crease: start again with the clearance the gap leaves
+                hx, hy, hz = v[i, 0], v[i, 1], v[i, 2]  # the stoutest touched part's velocity
+                x[i, 0], x[i, 1], x[i, 2] = px, py, pz
+                v[i, 0], v[i, 1], v[i, 2] = ux, uy, uz
+                _resolve(x, v, i, m, geo, margin, friction, dt, floor, use_floor, contact, mask, bx, by, bz, slack, qx,
+                         qy, qz)
+                v[i, 0], v[i, 1], v[i, 2] = hx, hy, hz  # it is still in the crease, held by the stoutest part
+        if touch is not None:
+            touch[i] = (contact[i, 0] != 0.0 or contact[i, 1] != 0.0 or contact[i, 2] != 0.0 or contact[i, 3] != 0.0
+                        or contact[i, 4] != 0.0 or contact[i, 5] != 0.0)
 
 
 @_inline

@@ -42,7 +42,7 @@ from cloth_client.solver.strain_kernels import SLIDE_FLOOR
 __all__ = ["drag_forces_reference", "integrate_reference", "line_limit_reference", "long_range_attach_reference",
            "ring_limit_reference", "simulate_substeps_reference", "slide_reference", "spring_forces_reference",
            "spring_strain_reference", "strain_limit_reference", "tangent_dot_reference", "tangent_reference",
-           "worst_stretch2_reference"]
+           "touching_reference", "worst_stretch2_reference"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -54,6 +54,13 @@ def long_range_attach_reference(x: F64, inv_mass: F64, anchor: I64, reach: F64) 
     dist = np.linalg.norm(d, axis=1)
     over = (inv_mass > 0) & (dist > reach)
     x[over] = x[anchor[over]] + d[over] * (reach[over] / dist[over])[:, None]
+
+
+def touching_reference(contact: F64) -> NDArray[np.bool_]:
+    """``(N,) bool``: whether each particle rests on any surface, a nonzero normal in ``contact (N, 6)``
+    (reference of :func:`~cloth_client.solver.strain_kernels.touching`)."""
+    out: NDArray[np.bool_] = (contact != 0.0).any(axis=1)
+    return out
 
 
 def slide_reference(x: F64, idx: I64, delta: F64, contact: F64) -> None:

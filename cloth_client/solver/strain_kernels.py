@@ -19,10 +19,12 @@ from cloth_client._jit import inline_kernel as _inline
 from cloth_client._jit import jit_kernel as _jit
 from cloth_client.solver.force_kernels import spring_vector
 
-__all__ = ["SLIDE_FLOOR", "line_limit", "long_range_attach", "ring_limit", "strain_limit", "worst_stretch2"]
+__all__ = ["SLIDE_FLOOR", "line_limit", "long_range_attach", "ring_limit", "strain_limit", "touching",
+           "worst_stretch2"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+B1 = NDArray[np.bool_]
 
 #: Least share of a constraint's unconstrained mobility the sliding line solve credits it with: a
 #: spring's diagonal entry is ``sum w (u . P u)`` (``P``: onto the tangent space of the surfaces a
@@ -31,6 +33,10 @@ I64 = NDArray[np.int64]
 #: (a move of at most about ``1 / sqrt(SLIDE_FLOOR)`` = 2 times the unconstrained one; 0.1 gave the same
 #: 26-take sample but one frame at 1,060 % on ``cmu/01_01``, 313 % with 0.25).
 SLIDE_FLOOR = 0.25
+#: Relative margins of the squared-length tests that skip a square root without changing a result: a
+#: squared length below ``hi**2 * _INSIDE`` and above ``lo**2 * _OUTSIDE`` is within ``[lo, hi]``, one
+#: above ``(s L)**2 * _OUTSIDE`` has a ratio ``l / L`` above ``s``, whatever the rounding of the root.
+_INSIDE, _OUTSIDE = 1.0 - 1e-12, 1.0 + 1e-12
 
 
 @_jit
@@ -40,7 +46,7 @@ def long_range_attach(x: F64, inv_mass: F64, anchor: I64, reach: F64) -> None:  
     for i in range(x.shape[0]):
         if inv_mass[i] <= 0.0:
             continue
-        a = anchor[i]
+        a = np.uint64(anchor[i])
         dx, dy, dz = x[i, 0] - x[a, 0], x[i, 1] - x[a, 1], x[i, 2] - x[a, 2]
         dist = math.sqrt(dx * dx + dy * dy + dz * dz)
         if dist > reach[i]:
@@ -58,17 +64,33 @@ Normals = tuple[float, float, float, float, float, float]
 def _normals(contact: F64, i: np.uint64) -> Normals:  # pragma: no cover
     """Row ``i`` of ``contact (N, 6)``: the (up to two) unit normals particle ``i`` touches.
 
-    :func:`_touching` and :func:`_tangent` take these six numbers instead of the array: an array
+    :func:`_tangent` takes these six numbers instead of the array: an array
     handed to an inlined helper with branches costs a reference-count increment and decrement per
     call (more than the arithmetic of an untouched particle)."""
     return contact[i, 0], contact[i, 1], contact[i, 2], contact[i, 3], contact[i, 4], contact[i, 5]
 
 
+@_jit
+def touching(contact: F64, out: B1) -> None:  # pragma: no cover
+    """``out[i]``: whether particle ``i`` rests on any surface (a nonzero normal in ``contact[i]``;
+    reference: :func:`~cloth_client.solver.reference.touching_reference`).
+
+    The strain passes take these flags (``touch``): one byte per particle instead of the six
+    normals, read for every particle a pass moves (the collision passes change
+    ``contact``; the substep kernel refreshes the flags after each)."""
+    for i in range(contact.shape[0]):
+        out[i] = ((contact[i, 0] != 0.0) | (contact[i, 1] != 0.0) | (contact[i, 2] != 0.0)
+                  | (contact[i, 3] != 0.0) | (contact[i, 4] != 0.0) | (contact[i, 5] != 0.0))
+
+
 @_inline
-def _touching(n: Normals) -> bool:  # pragma: no cover
-    """Whether a particle rests on any surface (a nonzero normal); when not, :func:`_tangent` and
-    :func:`_slide` are the identity."""
-    return n[0] != 0.0 or n[1] != 0.0 or n[2] != 0.0 or n[3] != 0.0 or n[4] != 0.0 or n[5] != 0.0
+def _flags(contact: F64, touch: B1 | None) -> B1:  # pragma: no cover
+    """``touch``, or the :func:`touching` flags of ``contact`` when None (a call without them)."""
+    if touch is None:
+        out = np.empty(contact.shape[0], dtype=np.bool_)
+        touching(contact, out)
+        return out
+    return touch
 
 
 @_inline
@@ -79,7 +101,7 @@ def _slide(contact: F64, i: np.uint64, w: float, dx: float, dy: float,
     ``contact[i]`` holds up to two unit normals (``[0:3]`` and ``[3:6]``, zero when unused); with
     two (a crease between body parts) the move is projected alternately until it points into
     neither surface, so pinched cloth slides along the crease. Callers use it for touching
-    particles only (see :func:`_touching`; the move of the others is ``w * d``), then add the move
+    particles only (see :func:`touching`; the move of the others is ``w * d``), then add the move
     to ``x[i]``. (The loop reads the normals from the array, as the single helper it replaces did:
     taken as numbers, its dot products were summed in another order.)"""
     mx, my, mz = w * dx, w * dy, w * dz
@@ -128,13 +150,17 @@ def _tangent_dot(n: Normals, ax: float, ay: float, az: float, bx: float, by: flo
 
 @_jit
 def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iterations: int,
-                 contact: F64) -> None:  # pragma: no cover
+                 contact: F64, touch: B1 | None = None) -> None:  # pragma: no cover
     """Provot-style strain limiting: project each spring's length into ``[lo, hi]`` (Gauss-Seidel).
 
     Odd iterations sweep backwards (symmetric Gauss-Seidel). ``contact (N, 6)`` holds the unit
-    normals of up to two surfaces each particle rests on (zero if none): moves into them are dropped.
-    Reference: :func:`~cloth_client.solver.reference.strain_limit_reference` (particle-disjoint batches).
+    normals of up to two surfaces each particle rests on (zero if none): moves into them are dropped;
+    ``touch (N,) bool``, optional, its :func:`touching` flags (computed here when not given). A
+    spring whose squared length is clearly within its bounds (:data:`_INSIDE`, :data:`_OUTSIDE`) is
+    passed over without a square root. Reference:
+    :func:`~cloth_client.solver.reference.strain_limit_reference` (particle-disjoint batches).
     """
+    flags = _flags(contact, touch)
     n_springs = springs.shape[0]
     for it in range(iterations):
         for k in range(n_springs):
@@ -144,7 +170,10 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
             dx = x[j, 0] - x[i, 0]
             dy = x[j, 1] - x[i, 1]
             dz = x[j, 2] - x[i, 2]
-            length = math.sqrt(dx * dx + dy * dy + dz * dz)
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < hi[s] * hi[s] * _INSIDE and d2 > lo[s] * lo[s] * _OUTSIDE:
+                continue  # clearly within bounds (no square root)
+            length = math.sqrt(d2)
             if length > hi[s]:
                 target = hi[s]
             elif length < lo[s]:
@@ -160,7 +189,7 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
             # the two ends written out: folded into a loop over (i, j), the compiled sums change
             # bits (fast-math contraction), which would void the sweep
             w = wi * c
-            if _touching(_normals(contact, i)):
+            if flags[i]:
                 mx, my, mz = _slide(contact, i, w, dx, dy, dz)
             else:
                 mx, my, mz = w * dx, w * dy, w * dz
@@ -168,7 +197,7 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
             x[i, 1] += my
             x[i, 2] += mz
             w = -wj * c
-            if _touching(_normals(contact, j)):
+            if flags[j]:
                 mx, my, mz = _slide(contact, j, w, dx, dy, dz)
             else:
                 mx, my, mz = w * dx, w * dy, w * dz
@@ -179,7 +208,7 @@ def strain_limit(x: F64, inv_mass: F64, springs: I64, lo: F64, hi: F64, iteratio
 
 @_jit
 def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float, max_compression: float,
-               contact: F64) -> None:  # pragma: no cover
+               contact: F64, touch: B1 | None = None) -> None:  # pragma: no cover
     """Strain limiting solved exactly along whole grid lines (one linearised projection per line).
 
     ``lines (L, m)`` lists the particles of each row (or column) in order and ``rest (L, m - 1)`` the
@@ -192,13 +221,19 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
     ``w (1 - (u . n)^2)``, floored at :data:`SLIDE_FLOOR` of ``w``) instead of only its tangential
     share of it; the moves are ``W P J^T lambda`` (and never into a touched surface).
 
-    Particle indices are used unsigned (``np.uint64``: no wrap-around test on each access); a line
-    without an active spring is skipped, an inactive spring's row of the system is the identity
-    (``cp = dp = 0``, as ``0 / 1`` gives), the off-diagonal entry shared by rows ``k`` and ``k + 1``
-    is computed once, a particle that touches nothing skips the projections (the identity then) and
-    one next to no active spring the move (zero): the same numbers as the plain form (reference:
+    ``touch (N,) bool``, optional: the :func:`touching` flags of ``contact`` (computed here when not
+    given). Particle indices are used unsigned (``np.uint64``: no wrap-around test on each access); a
+    spring whose squared length lies clearly inside its bounds (by a relative ``1e-12``, far above the
+    rounding of the square root) is inactive without a square root; a line without an active spring
+    is skipped, and the elimination and the moves of the others span their first to last active
+    spring only (outside it every row is the identity and every move zero); an inactive spring's row
+    of the system is the identity (``cp = dp = 0``, as ``0 / 1`` gives), the off-diagonal entry
+    shared by rows ``k`` and ``k + 1`` is computed once, a particle that touches nothing skips the
+    projections (the identity then) and one next to no active spring the move (zero): the same
+    numbers as the plain form (reference:
     :func:`~cloth_client.solver.reference.line_limit_reference`).
     """
+    flags = _flags(contact, touch)
     m = lines.shape[1]
     nx = np.empty((m, 3))
     cons = np.empty(m)
@@ -208,35 +243,50 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
     lam = np.zeros(m)
     for ln in range(lines.shape[0]):
         row = lines[ln]
-        any_active = False
-        for k in range(m - 1):
-            i, j = np.uint64(row[k]), np.uint64(row[k + 1])
-            dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
-            length = math.sqrt(dx * dx + dy * dy + dz * dz)
-            hi = rest[ln, k] * (1.0 + max_stretch)
-            lo = rest[ln, k] * (1.0 - max_compression)
-            w = inv_mass[i] + inv_mass[j]
-            active = (length > hi or length < lo) and length > 1e-12 and w > 0.0
-            act[k] = active
-            if active:
-                any_active = True
-                nx[k, 0], nx[k, 1], nx[k, 2] = dx / length, dy / length, dz / length
-                cons[k] = length - (hi if length > hi else lo)
-        if not any_active:
-            continue
+        first = last = -1  # the line's first and last active springs
         c = 0.0  # row k - 1's upper off-diagonal entry: row k's lower one (the same expression)
-        for k in range(m - 1):  # forward elimination
+        for k in range(-1, m - 1):
+            # spring k + 1 first: the elimination of row k needs whether it is active, and its direction
+            q = k + 1
+            if q < m - 1:
+                i, j = np.uint64(row[q]), np.uint64(row[q + 1])
+                dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                hi = rest[ln, q] * (1.0 + max_stretch)
+                lo = rest[ln, q] * (1.0 - max_compression)
+                if d2 < hi * hi * _INSIDE and d2 > lo * lo * _OUTSIDE:  # clearly within bounds: inactive
+                    act[q] = False
+                else:
+                    length = math.sqrt(d2)
+                    w = inv_mass[i] + inv_mass[j]
+                    active = (length > hi or length < lo) and length > 1e-12 and w > 0.0
+                    act[q] = active
+                    if active:
+                        last = q
+                        if first < 0:
+                            first = q
+                        nx[q, 0], nx[q, 1], nx[q, 2] = dx / length, dy / length, dz / length
+                        cons[q] = length - (hi if length > hi else lo)
+            if k < 0:
+                continue
+            # forward elimination of row k
             if not act[k]:
                 cp[k] = 0.0
                 dp[k] = 0.0
                 continue
             i, j = np.uint64(row[k]), np.uint64(row[k + 1])
             wi, wj = inv_mass[i], inv_mass[j]
-            ni, nj = _normals(contact, i), _normals(contact, j)
+            n0, n1, n2 = nx[k, 0], nx[k, 1], nx[k, 2]
             # J W P J^T: each end only moves in the tangent space of the surfaces it touches
-            b = (wi * _tangent_dot(ni, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2])
-                 + wj * _tangent_dot(nj, nx[k, 0], nx[k, 1], nx[k, 2], nx[k, 0], nx[k, 1], nx[k, 2]))
-            b = max(b, SLIDE_FLOOR * (wi + wj))
+            if flags[i]:
+                bi = _tangent_dot(_normals(contact, i), n0, n1, n2, n0, n1, n2)
+            else:
+                bi = n0 * n0 + n1 * n1 + n2 * n2
+            if flags[j]:
+                bj = _tangent_dot(_normals(contact, j), n0, n1, n2, n0, n1, n2)
+            else:
+                bj = n0 * n0 + n1 * n1 + n2 * n2
+            b = max(wi * bi + wj * bj, SLIDE_FLOOR * (wi + wj))
             d = -cons[k]
             if k > 0 and act[k - 1]:
                 a = c
@@ -245,16 +295,21 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
             else:
                 denom = b
             if k + 1 < m - 1 and act[k + 1]:
-                dot = _tangent_dot(nj, nx[k, 0], nx[k, 1], nx[k, 2], nx[k + 1, 0], nx[k + 1, 1], nx[k + 1, 2])
+                if flags[j]:
+                    dot = _tangent_dot(_normals(contact, j), n0, n1, n2, nx[k + 1, 0], nx[k + 1, 1], nx[k + 1, 2])
+                else:
+                    dot = n0 * nx[k + 1, 0] + n1 * nx[k + 1, 1] + n2 * nx[k + 1, 2]
                 c = -inv_mass[j] * dot
             else:
                 c = 0.0
             cp[k] = c / denom
             dp[k] = d / denom
-        lam[m - 2] = dp[m - 2]
-        for k in range(m - 3, -1, -1):  # back substitution
-            lam[k] = dp[k] - cp[k] * lam[k + 1]
-        for k in range(m):
+        if first < 0:
+            continue
+        lam[last] = dp[last]
+        for k in range(last + 1, first - 1, -1):  # back substitution, and the moves as it goes
+            if first <= k - 1 < last:
+                lam[k - 1] = dp[k - 1] - cp[k - 1] * lam[k]
             left = k > 0 and act[k - 1]
             right = k < m - 1 and act[k]
             if not (left or right):
@@ -270,9 +325,8 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
                 mz -= lam[k] * nx[k, 2]
             i = np.uint64(row[k])
             w = inv_mass[i]
-            n = _normals(contact, i)
-            if _touching(n):
-                mx, my, mz = _tangent(n, mx, my, mz)  # the move the system was solved for
+            if flags[i]:
+                mx, my, mz = _tangent(_normals(contact, i), mx, my, mz)  # the move the system was solved for
                 mx, my, mz = _slide(contact, i, w, mx, my, mz)
             else:
                 mx, my, mz = w * mx, w * my, w * mz
@@ -283,7 +337,7 @@ def line_limit(x: F64, inv_mass: F64, lines: I64, rest: F64, max_stretch: float,
 
 @_jit
 def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float, max_compression: float,
-               contact: F64) -> None:  # pragma: no cover
+               contact: F64, touch: B1 | None = None) -> None:  # pragma: no cover
     """:func:`line_limit` round closed rings, each solved as the open chain that starts after its
     slackest spring.
 
@@ -297,7 +351,9 @@ def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float,
     tilted by a bow). Ties go to the first such spring (the numpy reference computes the same
     ratios, but rounding may break a near-tie differently). Rings must not share particles; the
     rotated rings ``(R, m)`` are gathered into work arrays (two small allocations per call; indices
-    wrap by a compare, not a modulo). Reference: :func:`~cloth_client.solver.reference.ring_limit_reference`.
+    wrap by a compare, not a modulo; a spring whose squared length is clearly above the slackest
+    ratio so far is passed over without a square root); ``touch`` as in :func:`line_limit`. Reference:
+    :func:`~cloth_client.solver.reference.ring_limit_reference`.
     """
     n_rings, m = rings.shape
     if n_rings == 0:
@@ -311,18 +367,22 @@ def ring_limit(x: F64, inv_mass: F64, rings: I64, rest: F64, max_stretch: float,
         for k in range(m):
             j = np.uint64(rings[ln, k + 1 if k + 1 < m else 0])
             dx, dy, dz = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
-            ratio = math.sqrt(dx * dx + dy * dy + dz * dz) / rest[ln, k]
+            i = j
+            d2 = dx * dx + dy * dy + dz * dz
+            r = rest[ln, k]
+            if d2 > slack * slack * (r * r) * _OUTSIDE:
+                continue  # clearly above the slackest ratio so far: no root, no division
+            ratio = math.sqrt(d2) / r
             if ratio < slack:
                 slack = ratio
                 cut = k
-            i = j
         src = cut + 1 if cut + 1 < m else 0
         for k in range(m):
             rows[ln, k] = rings[ln, src]
             if k < m - 1:
                 rows_rest[ln, k] = rest[ln, src]
             src = src + 1 if src + 1 < m else 0
-    line_limit(x, inv_mass, rows, rows_rest, max_stretch, max_compression, contact)
+    line_limit(x, inv_mass, rows, rows_rest, max_stretch, max_compression, contact, _flags(contact, touch))
 
 
 @_jit

@@ -69,6 +69,7 @@ def simulate_substeps(
     a1 = np.empty(cap_a.shape[1:])
     b1 = np.empty(cap_a.shape[1:])
     contact = np.zeros((n, 6))
+    touch = np.zeros(n, dtype=np.bool_)  # contact's rows that are nonzero (strain_kernels.touching)
     cand = np.empty(n, dtype=np.int64)
     xb = np.empty((n, 3))
     for step in range(n_sub):
@@ -90,20 +91,21 @@ def simulate_substeps(
         _lerp_keys(cap_a, s1, a1)
         _lerp_keys(cap_b, s1, b1)
         contact[:] = 0.0
+        touch[:] = False
         broad_phase(x, inv_mass, a1, b1, radii, margin + BROAD_SLACK, cand, xb)
         for _ in range(lim_iterations):  # strain limiting and contacts, interleaved
             long_range_attach(x, inv_mass, anchor, reach)
             for _sweep in range(lim_sweeps):
-                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
-                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
-            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1, contact)
+                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact, touch)
+                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact, touch)
+                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact, touch)
+            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1, contact, touch)
             for i in range(n):
                 if inv_mass[i] > 0.0:
                     for d in range(3):
                         v[i, d] = (x[i, d] - xp[i, d]) / dt
             collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, friction, dt, floor, use_floor, contact,
-                    cand, xb, BROAD_SLACK, xp)
+                    cand, xb, BROAD_SLACK, xp, touch)
         # final rounds: contact-aware strain limiting (contacts slide along the surfaces of the last
         # collision instead of into them), then collision (with final_rounds == 0: no collision after it)
         # then up to extra_rounds more while a structural spring is stretched beyond the trigger
@@ -117,16 +119,16 @@ def simulate_substeps(
             if straddles and _r >= rounds:  # a limb between two particles of a stretched spring: lift it off
                 release_straddles(x, inv_mass, lim_springs, lim_hi, extra_trigger2, a1, b1, radii, margin, opposed)
             for _sweep in range(final_sweeps):
-                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact)
-                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact)
-                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact)
-            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact)
+                line_limit(x, inv_mass, lines_a, rest_a, max_stretch, max_compression, contact, touch)
+                line_limit(x, inv_mass, lines_b, rest_b, max_stretch, max_compression, contact, touch)
+                ring_limit(x, inv_mass, lines_c, rest_c, max_stretch, max_compression, contact, touch)
+            strain_limit(x, inv_mass, lim_springs, lim_lo, lim_hi, 1 if final_sweeps > 0 else 0, contact, touch)
             for i in range(n):
                 for d in range(3):
                     v[i, d] += (x[i, d] - f[i, d]) / dt
             if final_rounds > 0:  # friction was applied in the interleaved passes already
                 collide(x, v, inv_mass, a0, b0, a1, b1, radii, margin, 0.0, dt, floor, use_floor, contact,
-                        cand, xb, BROAD_SLACK, xp)
+                        cand, xb, BROAD_SLACK, xp, touch)
         for i in range(n):
             sp = math.sqrt(v[i, 0] ** 2 + v[i, 1] ** 2 + v[i, 2] ** 2)
             if sp > max_speed and inv_mass[i] > 0.0:

@@ -33,6 +33,7 @@ from cloth_client.contact.seam import (
 from cloth_client.contact.seam_kernels import SEAM_LENGTH_SLACK
 from cloth_client.solver.cloth import ClothParams, build_model, initial_state, step
 from cloth_client.solver.garment import REST_CLEARANCE, make_cape, make_sheet, make_skirt
+from cloth_client.solver.reference import touching_reference
 from protocol.kinematics import fk
 from protocol.rotations import rotvec_to_matrix
 from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, ROT_JOINTS, default_body, standing_pose
@@ -374,8 +375,10 @@ def test_broad_phase_kernel_matches_numpy_and_never_hides_a_contact() -> None:
     outs = []
     for mask, ref in ((np.full(len(x), K.ALL_CAPSULES), xb), (cand, xb)):
         xx, vv, contact = x1.copy(), v.copy(), np.zeros((len(x), 6))
+        touch = np.ones(len(x), dtype=bool)
         K.collide(xx, vv, free.astype(float), a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, True, contact,
-                  mask, ref, slack - 0.003, x)  # the capsules moved 3 mm: the particles may move the rest
+                  mask, ref, slack - 0.003, x, touch)  # the capsules moved 3 mm: the particles may move the rest
+        np.testing.assert_array_equal(touch, touching_reference(contact))  # the flags written on the way
         outs.append((xx, vv, contact))
     xn, vn, cn = x1.copy(), v.copy(), np.zeros((len(x), 6))
     collide_reference(xn, vn, free, a, b, a1, b1, r, margin, 0.3, 0.004, 0.0, cn, x)

@@ -29,6 +29,7 @@ from cloth_client.solver.reference import (
     spring_forces_reference,
     spring_strain_reference,
     strain_limit_reference,
+    touching_reference,
     worst_stretch2_reference,
 )
 from protocol.skeleton import default_body
@@ -273,6 +274,28 @@ def test_constraint_kernels_match_numpy(model, rng: np.random.Generator) -> None
     assert not free.all() and got <= worst
     np.testing.assert_allclose(got, ratio[free].max(), rtol=1e-12)
     np.testing.assert_allclose(got, worst_stretch2_reference(x, model.lim_springs, model.lim_hi, held), rtol=1e-12)
+
+
+def test_touch_flags_match_numpy_and_leave_the_strain_passes_unchanged(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    """The :func:`touching` flags equal the reference, and each strain pass gives bit for bit the same
+    positions with the flags handed in (as the substep kernel does) as when it derives them itself."""
+    x, _, contact = _perturbed(model, rng)
+    touch = np.empty(len(x), dtype=bool)
+    S.touching(contact, touch)
+    np.testing.assert_array_equal(touch, touching_reference(contact))
+    assert 0 < touch.sum() < len(x)
+    p = model.params
+    limits = (p.max_stretch, p.max_compression, contact)
+    passes = [(S.line_limit, (model.lines_v, model.rest_v, *limits)),
+              (S.line_limit, (model.lines_h, model.rest_h, *limits)),
+              (S.ring_limit, (model.lines_s, model.rest_s, *limits)),
+              (S.strain_limit, (model.lim_springs, model.lim_lo, model.lim_hi, 2, contact))]
+    for kernel, args in passes:
+        a, b = x.copy(), x.copy()
+        kernel(a, model.inv_mass, *args)
+        kernel(b, model.inv_mass, *args, touch)
+        assert np.array_equal(a, b)
+    assert np.abs(a - x).max() > 1e-4
 
 
 def test_contact_aware_moves_never_go_into_the_surface(model, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]

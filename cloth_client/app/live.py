@@ -58,6 +58,7 @@ from cloth_client.solver.driver import ClothDriver
 from cloth_client.solver.garment import DEFAULT_PARTICLES, Garment, make_garment
 from protocol.net.follow import TrackerFollower, follow_step
 from protocol.net.session import open_session, undeclare_quietly
+from protocol.skeleton import default_body, standing_pose
 from protocol.wire.codec import ProtocolError, decode
 from protocol.wire.keys import ALL_ALIVE, body_key, cloth_mesh_key, pose_key
 from protocol.wire.media import ClothMesh, encode_cloth_mesh
@@ -65,7 +66,7 @@ from protocol.wire.messages import BodyInfo, PoseFrame
 from protocol.wire.validate import RateLimitedLog, StreamClock, check_body_info, check_pose_frame
 
 __all__ = ["MAX_BACKLOG_S", "MAX_SUBSTEPS_PER_FRAME", "OVER_BUDGET_LIMIT", "STEP_BUDGET_S", "TOPOLOGY_EVERY",
-           "ClothClient", "LiveOptions", "LiveResult", "mesh_message", "run_live"]
+           "ClothClient", "LiveOptions", "LiveResult", "mesh_message", "run_live", "warm_up"]
 
 log = logging.getLogger(__name__)
 #: The mesh message carries the triangles in its first message and then every this many messages.
@@ -100,6 +101,7 @@ class LiveOptions:
     duration: float | None = None
     params: ClothParams | None = None
     follow: bool = False  # follow the first tracker alive (liveliness) instead of tracker_id
+    warm_up: bool = True  # run the solver on a standing default body before the session opens
 
 
 @dataclass
@@ -382,6 +384,22 @@ def _query_body(session: zenoh.Session, key: str, client: ClothClient) -> BodyIn
     return None
 
 
+def warm_up(opts: LiveOptions, should_stop: Callable[[], bool] = lambda: False) -> float:
+    """Compile (the first run after an install) or load every solver kernel before the first pose:
+    the garment dressed on the default body standing still, a few frames. Without it the first
+    received pose would wait for the compilation (about a minute on a fresh install, 2 cores busy)
+    while the poses pile up. Returns the seconds it took."""
+    t0 = time.monotonic()
+    body = default_body()
+    driver = ClothDriver(body, make_garment(opts.garment, body, min(opts.particles, DEFAULT_PARTICLES)), opts.params)
+    pose = standing_pose(body)
+    for k in range(3):
+        if should_stop():
+            break
+        driver.feed(pose, k / 30.0)
+    return time.monotonic() - t0
+
+
 def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> LiveResult:
     """Run the live client until ``stop`` is set, ``max_frames`` poses were simulated or ``duration``
     seconds passed.
@@ -403,6 +421,12 @@ def run_live(conf: zenoh.Config, opts: LiveOptions, stop: threading.Event) -> Li
         If the zenoh session cannot be opened.
     """
     result = LiveResult()
+    if opts.warm_up:
+        log.info("warming up the cloth solver (the first run after an install compiles its kernels)")
+        log.info("warm-up: %.1f s", warm_up(opts, stop.is_set))
+        if stop.is_set():
+            result.reason = "signal"
+            return result
     t_start = time.monotonic()
     client: ClothClient | None = None
     with open_session(conf) as session:

@@ -40,6 +40,9 @@ __all__ = ["ASSUMED_STATURE_M", "CameraEstimate", "camera_height", "differs", "l
 
 #: The stature taken for a person who did not give theirs.
 ASSUMED_STATURE_M = 1.70
+#: Adults' statures (1.50-1.95 m) lie within this fraction of the assumed one: a camera height
+#: measured for the assumed stature is that uncertain.
+STATURE_SPREAD = 0.15
 #: Camera heights a measurement may give; outside, the silhouette was not a whole person standing.
 PLAUSIBLE_HEIGHT_M = (0.2, 4.0)
 
@@ -260,10 +263,13 @@ def with_height(estimate: CameraEstimate, rows: list[tuple[float, float]], camer
     return CameraEstimate(estimate.tilt_deg, estimate.roll_deg, h, stature_m, estimate.segments)
 
 
-def differs(estimate: CameraEstimate, camera: Camera, tilt_tol_deg: float = 3.0, height_tol_m: float = 0.15
-            ) -> bool:
+def differs(estimate: CameraEstimate, camera: Camera, tilt_tol_deg: float = 3.0, height_tol_m: float = 0.15,
+            stature_known: bool = True) -> bool:
     """Whether the measured placement is clearly not ``camera``'s (tilt or roll more than
-    ``tilt_tol_deg`` apart, height more than ``height_tol_m``)."""
+    ``tilt_tol_deg`` apart, height more than ``height_tol_m``). The height scales with the stature
+    it was measured for: with an assumed one (``stature_known`` False) it must also be more than
+    :data:`STATURE_SPREAD` of the camera's height apart, what adults' statures alone explain."""
+    h_tol = height_tol_m if stature_known else max(height_tol_m, STATURE_SPREAD * camera.height_m)
     checks = [(estimate.tilt_deg, camera.tilt_deg, tilt_tol_deg), (estimate.roll_deg, camera.roll_deg, tilt_tol_deg),
-              (estimate.height_m, camera.height_m, height_tol_m)]
+              (estimate.height_m, camera.height_m, h_tol)]
     return any(math.isfinite(m) and abs(m - c) > tol for m, c, tol in checks)

@@ -216,16 +216,17 @@ def _ghost(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_
     return replace(state, ghost_run=run, ghost_recent=recent), g
 
 
-def _report_camera(estimate: CameraEstimate, camera: Camera) -> None:
+def _report_camera(estimate: CameraEstimate, camera: Camera, stature_known: bool = False) -> None:
     """Log the camera's placement measured from its frames; a warning, with the options to pass, when
-    it is clearly not the camera the tracker was given."""
+    it is clearly not the camera the tracker was given (the height only beyond what an assumed
+    stature explains, :func:`~tracker_service.pipeline.camera_estimate.differs`)."""
     if not np.isfinite(estimate.tilt_deg):
         log.info("too few vertical edges in the room (%d) to measure the camera's tilt", estimate.segments)
         return
     log.info("camera measured from its frames: tilt %.1f deg, roll %.1f deg, height %.2f m for a person of "
              "%.2f m (%d vertical edges)", estimate.tilt_deg, estimate.roll_deg, estimate.height_m,
              estimate.stature_m, estimate.segments)
-    if differs(estimate, camera):
+    if differs(estimate, camera, stature_known=stature_known):
         height = f"--camera-height {estimate.height_m:.2f} " if np.isfinite(estimate.height_m) else ""
         log.warning("the camera seems not to be where the tracker assumes it (%s): measured tilt %.1f deg, roll "
                     "%.1f deg, height %.2f m (for a person of %.2f m); for better tracking run with %s--camera-tilt "
@@ -292,7 +293,7 @@ def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.
         if camera_estimate is not None and not np.isfinite(camera_estimate.height_m):
             stature = config.body.height if config.body is not None else ASSUMED_STATURE_M
             camera_estimate = with_height(camera_estimate, list(init_rows), camera, stature)
-            _report_camera(camera_estimate, camera)
+            _report_camera(camera_estimate, camera, stature_known=config.body is not None)
         if config.shoes is not None and shoe_samples:
             shoes = learn_shoes(np.concatenate([a for a, _ in shoe_samples]),
                                 np.concatenate([b for _, b in shoe_samples]), config.shoes)

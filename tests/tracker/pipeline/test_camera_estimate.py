@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -80,6 +81,10 @@ def test_rows_height_and_the_difference_from_the_working_camera() -> None:
     assert est.height_m == pytest.approx(1.6, abs=0.03)
     assert not differs(est, cam)
     assert differs(est, placed_camera())  # the default camera: 1.2 m, level
+    # a height 17 cm off for an assumed stature is what a 1.50 m or 1.95 m person gives: no warning
+    level = CameraEstimate(tilt_deg=0.0, roll_deg=0.0, height_m=1.37, segments=8)
+    assert differs(level, placed_camera()) and not differs(level, placed_camera(), stature_known=False)
+    assert differs(replace(level, height_m=1.6), placed_camera(), stature_known=False)
     assert with_height(CameraEstimate(), [rows], cam) == CameraEstimate()  # no tilt, no height
 
 

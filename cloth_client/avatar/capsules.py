@@ -57,6 +57,7 @@ __all__ = [
     "limb_overlap",
     "pose_keys",
     "rigid_root_delta",
+    "swing_vectors",
 ]
 
 F64 = NDArray[np.float64]
@@ -200,7 +201,7 @@ class AvatarKeys:
             u = self.joints[:, axis[:, 1]] - self.joints[:, axis[:, 0]]
             u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
             c = np.einsum("kpij,pj->kpi", r, axis_local)
-            offset = _swing(c, u, offset)
+            offset = swing_vectors(c, u, offset)
             if roll is not None:
                 line = self.joints[:, roll[1]] - self.joints[:, roll[0]]  # (K+1, 3)
                 line = line / np.maximum(np.linalg.norm(line, axis=-1, keepdims=True), 1e-12)
@@ -209,7 +210,7 @@ class AvatarKeys:
                 norm = np.linalg.norm(square, axis=-1, keepdims=True)
                 ok = norm[..., 0] > 1e-6  # a line along the axis has no roll to follow
                 square = square / np.maximum(norm, 1e-12)
-                offset = np.where(ok[..., None], _swing(square, line, offset), offset)
+                offset = np.where(ok[..., None], swing_vectors(square, line, offset), offset)
         out: F64 = origin + offset
         return out
 
@@ -273,7 +274,7 @@ class AvatarKeys:
         return res
 
 
-def _swing(c: F64, u: F64, y: F64) -> F64:
+def swing_vectors(c: F64, u: F64, y: F64) -> F64:
     """``y (..., 3)`` rotated by the smallest rotation taking unit ``c`` onto unit ``u`` (same shapes;
     Rodrigues with ``w = c x u``: ``y cos + w x y + w (w . y) / (1 + cos)``)."""
     w = np.cross(c, u)

@@ -29,6 +29,7 @@ import trimesh
 from numpy.typing import NDArray
 from skimage.measure import marching_cubes
 
+from cloth_client.avatar.capsules import swing_vectors
 from protocol.kinematics import fk_global
 from protocol.skeleton import CAPSULE_JOINTS, CAPSULE_OWNER, N_CAPSULES, Body, rest_pose
 
@@ -138,19 +139,6 @@ def build_skinned_mesh(body: Body, voxel_m: float = 0.02, blend_m: float = 0.03,
                        a, b)
 
 
-def _swing(u: F64, v: F64) -> F64:
-    """Rotations ``(C, 3, 3)`` turning unit vectors ``u`` onto ``v`` by the smallest angle."""
-    c = np.einsum("cd,cd->c", u, v)
-    axis = np.cross(u, v)
-    s = np.linalg.norm(axis, axis=1)
-    k = axis / np.maximum(s, 1e-12)[:, None]
-    kx = np.zeros((len(u), 3, 3))
-    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    kx -= np.transpose(kx, (0, 2, 1))
-    eye = np.broadcast_to(np.eye(3), kx.shape)
-    return eye + s[:, None, None] * kx + (1.0 - c)[:, None, None] * (kx @ kx)
-
-
 def capsule_frames(mesh: SkinnedMesh, body: Body, pose: F64, a: F64 | None = None, b: F64 | None = None
                    ) -> tuple[F64, F64]:
     """Each capsule's rigid transform from the T-pose to ``pose`` (module docstring, step 3).
@@ -173,15 +161,15 @@ def capsule_frames(mesh: SkinnedMesh, body: Body, pose: F64, a: F64 | None = Non
     if a is None or b is None:
         a, b = joints[CAPSULE_JOINTS[:, 0]], joints[CAPSULE_JOINTS[:, 1]]
     rot = glob[CAPSULE_OWNER]
-    rest_axis = mesh.rest_b - mesh.rest_a
-    now = np.einsum("cij,cj->ci", rot, rest_axis)
-    target = b - a
-    ok = (np.linalg.norm(now, axis=1) > 1e-9) & (np.linalg.norm(target, axis=1) > 1e-9)
-    unit = np.where(ok[:, None], now, 1.0) / np.linalg.norm(np.where(ok[:, None], now, 1.0), axis=1, keepdims=True)
-    tunit = np.where(ok[:, None], target, 1.0) / np.linalg.norm(np.where(ok[:, None], target, 1.0), axis=1,
-                                                               keepdims=True)
-    swing = np.where(ok[:, None, None], _swing(unit, tunit), np.eye(3))
-    return swing @ rot, np.asarray(a, np.float64)
+    now = np.einsum("cij,cj->ci", rot, mesh.rest_b - mesh.rest_a)
+    target = np.asarray(b, np.float64) - a
+    n_now, n_target = np.linalg.norm(now, axis=1), np.linalg.norm(target, axis=1)
+    ok = (n_now > 1e-9) & (n_target > 1e-9)
+    unit = now / np.maximum(n_now, 1e-9)[:, None]
+    tunit = target / np.maximum(n_target, 1e-9)[:, None]
+    # the frame's axes (the columns of rot) swung with the capsule's axis
+    cols = swing_vectors(unit[:, None, :], tunit[:, None, :], np.swapaxes(rot, 1, 2))
+    return np.where(ok[:, None, None], np.swapaxes(cols, 1, 2), rot), np.asarray(a, np.float64)
 
 
 def pose_vertices(mesh: SkinnedMesh, body: Body, pose: F64, a: F64 | None = None, b: F64 | None = None) -> F64:

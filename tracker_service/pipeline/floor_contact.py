@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.kinematics import fk_global
-from protocol.rotations import matrix_to_rotvec, rotvec_to_matrix
+from protocol.rotations import axis_rotation, matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX, LIMITS_DEG, PARENTS, POSE_SIZE, ROT_SLOT, Body
 from tracker_service.pipeline.refinement import swing_rotation
 
@@ -65,11 +65,6 @@ def ankle_floor_height(body: Body) -> float:
     """Height (metres) of ``body``'s ankle joint above the floor standing straight, foot flat."""
     j = JOINT_INDEX
     return float(body.standing_root_height() + body.offsets[j["l_knee"], 1] + body.offsets[j["l_ankle"], 1])
-
-
-def _rot_x(angle: float) -> NDArray[np.float64]:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def _flex_for_distance(u: NDArray[np.float64], w: NDArray[np.float64], dist: float, lo: float,
@@ -117,8 +112,6 @@ def floor_contact(pose: NDArray[np.float64], body: Body, params: FloorParams) ->
         return out
     level = ankle_floor_height(body)
     pos, glob = fk_global(pose, body)
-    local = rotvec_to_matrix(pose[3:].reshape(-1, 3))
-    changed = False
     for hip, knee, ankle in _LEGS:
         target_y = level - params.tolerance_m
         if pos[ankle, 1] >= target_y or pos[hip, 1] < level + params.min_hip_clearance_m:
@@ -126,14 +119,14 @@ def floor_contact(pose: NDArray[np.float64], body: Body, params: FloorParams) ->
         target = pos[ankle].copy()
         target[1] = target_y
         g_hip, g_pelvis = glob[hip], glob[PARENTS[hip]]
-        k_local = local[ROT_SLOT[knee]]
+        k_local = rotvec_to_matrix(pose[3 + 3 * ROT_SLOT[knee]: 6 + 3 * ROT_SLOT[knee]])
         u = body.offsets[knee]  # the thigh in the hip's frame
         w = k_local @ body.offsets[ankle]  # the shin in the hip's frame
         dist = float(np.linalg.norm(target - pos[hip]))
         # the knee's flexion so far (about +x), and how much more it may bend
         flex_now = float(np.arctan2(-w[2], -w[1]))
         t = _flex_for_distance(u, w, dist, -max(flex_now, 0.0), max(_KNEE_MAX - flex_now, 0.0))
-        k_new = _rot_x(t) @ k_local
+        k_new = axis_rotation("X", t) @ k_local
         reach = g_hip @ (u + k_new @ body.offsets[ankle])  # hip -> ankle, world, before the swing
         g_hip_new = swing_rotation(reach, target - pos[hip]) @ g_hip
         g_knee_new = g_hip_new @ k_new
@@ -141,5 +134,4 @@ def floor_contact(pose: NDArray[np.float64], body: Body, params: FloorParams) ->
         out[3 + 3 * ROT_SLOT[knee]: 6 + 3 * ROT_SLOT[knee]] = matrix_to_rotvec(k_new)
         # the foot keeps its world orientation
         out[3 + 3 * ROT_SLOT[ankle]: 6 + 3 * ROT_SLOT[ankle]] = matrix_to_rotvec(g_knee_new.T @ glob[ankle])
-        changed = True
-    return out if changed else pose.copy()
+    return out

@@ -34,9 +34,10 @@ from tracker_service.scene.variation import AXES
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _eval(bvh: Path, seed: int, axis: str, frames: int) -> dict[str, Any]:
+def _eval(bvh: Path, seed: int, axis: str, frames: int, appearance: str | None = None) -> dict[str, Any]:
     cmd = [sys.executable, "-m", "tracker_service", "eval", "-q", "--json", "--bvh", str(bvh), "--seed", str(seed),
-           "--frames", str(frames), "--vary", "" if axis == "default" else axis]
+           "--frames", str(frames), "--vary", "" if axis == "default" else axis,
+           *(["--appearance", appearance] if appearance else [])]
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
     if r.returncode != 0:
         return {"error": r.stderr.strip().splitlines()[-1:] or [f"exit {r.returncode}"]}
@@ -51,6 +52,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_robustness"))
+    ap.add_argument("--appearance", metavar="PATH|off", help="appearance network (default: the shipped one)")
     args = ap.parse_args()
     rows = [a.strip() for a in args.axes.split(",") if a.strip()]
     if unknown := [a for a in rows if a != "default" and a not in AXES]:
@@ -61,7 +63,7 @@ def main() -> int:
     cells = list(itertools.product(rows, pick, seeds))
     t0 = time.time()
     with ThreadPoolExecutor(args.jobs) as ex:
-        runs = list(tqdm(ex.map(lambda c: _eval(root / c[1].path, c[2], c[0], args.frames), cells),
+        runs = list(tqdm(ex.map(lambda c: _eval(root / c[1].path, c[2], c[0], args.frames, args.appearance), cells),
                          total=len(cells), desc="robustness", unit="run"))
     records = [{"axis": a, "take": e.path, "seed": s, **r} for (a, e, s), r in zip(cells, runs, strict=True)]
     lines = ["| axis | runs | MPJPE cm (mean) | worst run cm | frames within 10 cm | stature error cm | what varied |",

@@ -4,13 +4,16 @@ recovery measured from outside.
 
 Usage::
 
-    .venv/bin/python bench/bench_soak.py [--minutes 10] [--burst-every 60] [--burst-s 5] [--out DIR]
+    .venv/bin/python bench/bench_soak.py [--minutes 10] [--burst-every 60] [--burst-s 5]
+        [--fuzz-session new|one] [--out DIR]
 
 Processes (the product's own commands, all clients of one ``mocap-router`` on loopback):
 ``mocap-tracker replay --loop`` of the game's winning round (``game_client/scripts/round_win.toml``),
 ``mocap-game run`` and ``mocap-cloth run --publish-mesh`` following it, and every ``--burst-every``
 seconds ``python -m protocol fuzz`` for ``--burst-s`` seconds at 100 payloads a second, on the pose
-key and the body key in turn. The bench subscribes to the game's state and events and the cloth's
+key and the body key in turn (``--fuzz-session new``: a new Zenoh session each burst, as a stranger
+reconnecting would; ``one``: the same payloads from the bench's own long-lived session, as a
+connected client gone hostile would). The bench subscribes to the game's state and events and the cloth's
 mesh, counts them per second and samples every process's resident memory (``VmRSS``) every 10 s.
 
 Reported: per process the memory after the first minute and at the end and its slope (MB per
@@ -67,11 +70,31 @@ def _slope(t_min: list[float], mb: list[float]) -> float:
     return float(np.polyfit(t[keep], m[keep], 1)[0])
 
 
+def _burst_from(session: zenoh.Session, key: str, seconds: float, seed: int, rate: float = 100.0) -> None:
+    """``python -m protocol fuzz``'s payloads, published from ``session`` (already open)."""
+    from protocol.__main__ import fuzz_template
+    from protocol.wire.fuzz import hostile_stream
+
+    stream = hostile_stream(fuzz_template(key), np.random.default_rng(seed), last_seq=1, clock=0.0)
+    pub = session.declare_publisher(key)
+    try:
+        t0 = time.monotonic()
+        k = 0
+        while time.monotonic() - t0 < seconds:
+            pub.put(next(stream)[1])
+            k += 1
+            time.sleep(max(0.0, t0 + k / rate - time.monotonic()))
+    finally:
+        undeclare_quietly(pub)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--burst-every", type=float, default=60.0, metavar="S")
     ap.add_argument("--burst-s", type=float, default=5.0, metavar="S")
+    ap.add_argument("--fuzz-session", choices=("new", "one"), default="new",
+                    help="each burst from a new session (python -m protocol fuzz) or all from one session")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_soak"))
     args = ap.parse_args()
     duration = args.minutes * 60.0
@@ -133,7 +156,10 @@ def main() -> int:
                     cmd = [sys.executable, "-m", "protocol", "fuzz", "--key", key, "--rate", "100", "--duration",
                            str(args.burst_s), "--seed", str(n_burst), "-q", *net]
                     b0 = time.monotonic() - t_start
-                    subprocess.run(cmd, cwd=ROOT, capture_output=True, check=False, timeout=args.burst_s + 60)
+                    if args.fuzz_session == "new":
+                        subprocess.run(cmd, cwd=ROOT, capture_output=True, check=False, timeout=args.burst_s + 60)
+                    else:
+                        _burst_from(session, key, args.burst_s, n_burst)
                     bursts.append((b0, time.monotonic() - t_start, key.rsplit("/", 1)[-1]))
                     next_burst += args.burst_every
                     n_burst += 1
@@ -210,7 +236,7 @@ def main() -> int:
     lines += ["", f"{len(bursts)} bursts; game events per minute outside bursts "
               f"{report['events_per_min']['outside_bursts']}, in bursts {report['events_per_min']['in_bursts']}"]
     meta = bench_meta("bench_soak.py", t0, minutes=args.minutes, burst_every_s=args.burst_every,
-                      burst_s=args.burst_s)
+                      burst_s=args.burst_s, fuzz_session=args.fuzz_session)
     (logs / "soak.json").write_text(json.dumps({"meta": meta, **report}, indent=1, default=str))
     (logs / "soak.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

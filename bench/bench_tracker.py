@@ -204,6 +204,8 @@ def main() -> int:
         summary[name] = {"mpjpe_cm": avg("mpjpe_cm"), "root_error_cm": avg("root_error_cm"),
                          "mpjpe_2d_px": avg("mpjpe_2d_px"), "frames_within_10cm": avg("frames_within_10cm"),
                          "accel_error_cm": avg("accel_error_cm"),
+                         "joint_jumps_15cm": int(sum(r["joint_jumps_15cm"] for r in rs)),
+                         "worst_joint_jump_cm": max(r["worst_joint_jump_cm"] for r in rs),
                          "reacquire_s_max": None if any(x is None for x in re) else max(re),
                          "forced_losses": int(sum(r["forced_losses"] for r in rs)),
                          "reacquired": int(sum(r["reacquired"] for r in rs)),
@@ -215,7 +217,8 @@ def main() -> int:
                                                     axis=0).round(0).tolist()}
     res["summary"] = summary
     res["per_take"] = {k: [{kk: r[kk] for kk in ("take", "mpjpe_cm", "root_error_cm", "frames_within_10cm",
-                                                 "accel_error_cm", "reacquire_s_max", "body_selected",
+                                                 "accel_error_cm", "joint_jumps_15cm", "reacquire_s_max",
+                                                 "body_selected",
                                                  "subject_height_m")} for r in v]
                        for k, v in rows.items()}
     if not args.no_pyramid:

@@ -1,6 +1,7 @@
 """Training the appearance cue's network (``mocap-tracker train-appearance``, and a missing default
 network when a command asks for it): render the training recordings (held-out takes excluded) and
-gesture scripts on random synthetic people, then train each network of the ensemble on its passes.
+gesture scripts on random synthetic people (some in randomised scenes), then train each network of
+the ensemble on its passes.
 
 Needs PyTorch (imported inside :func:`train_appearance`); the tracker itself does not.
 """
@@ -35,18 +36,23 @@ def _pass_plan(options: TrainAppearanceOptions) -> tuple[int, Passes]:
 
 def _configs(options: TrainAppearanceOptions, n: int, plan: Passes) -> list[Any]:
     """One :class:`~tracker_service.build.appearance_train.TrainConfig` per network."""
-    from tracker_service.build.appearance_train import TrainConfig, member_posture_passes
+    from tracker_service.build.appearance_train import TrainConfig, member_posture_passes, member_vary_passes
 
     postures = member_posture_passes(n) if options.posture_passes is None else options.posture_passes
     if postures and len(postures) != n:
         raise ValueError(f"{n} network(s) need {n} posture pass list(s) separated by ';' in --posture-passes, "
                          f"got {len(postures)}")
+    varied = member_vary_passes(n) if options.vary_passes is None else options.vary_passes
+    if varied and len(varied) != n:
+        raise ValueError(f"{n} network(s) need {n} randomised pass list(s) separated by ';' in --vary-passes, "
+                         f"got {len(varied)}")
     base = TrainConfig()
     if options.epochs is not None:
         base = replace(base, epochs=options.epochs)
     if options.width is not None:
         base = replace(base, width=options.width)
-    return [replace(base, passes=plan[k], posture_passes=postures[k] if postures else (), seed=k)
+    return [replace(base, passes=plan[k], posture_passes=postures[k] if postures else (),
+                    vary_passes=varied[k] if varied else (), seed=k)
             for k in range(n)]
 
 
@@ -68,6 +74,9 @@ def _render_views(entries: list[Any], configs: list[Any], data: Path, jobs: int)
         if every_posture:
             render_samples(entries, every_posture, configs[0].size, data, jobs, rendered, load=False,
                            posture=configs[0].posture)
+        every_varied = tuple(dict.fromkeys(p for c in configs for p in c.vary_passes))
+        if every_varied:
+            render_samples(entries, every_varied, configs[0].size, data, jobs, rendered, load=False, vary=True)
 
 
 def _train_networks(entries: list[Any], configs: list[Any], data: Path, jobs: int) -> list[Any]:

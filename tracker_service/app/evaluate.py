@@ -19,6 +19,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.motion import Motion
+from tracker_service.app.error_metrics import (
+    acceleration_error,
+    confidence_error_spearman,
+    joint_jumps,
+    reacquisition_times,
+)
 from tracker_service.app.options import EvalOptions
 from tracker_service.body.measured import given_body
 from tracker_service.camera import Camera
@@ -36,7 +42,8 @@ from tracker_service.scene.variation import h264_roundtrip
 from tracker_service.sources.frame_source import fit_frame
 from tracker_service.templates.database import LoadedDatabase
 
-__all__ = ["EvalOptions", "acceleration_error", "evaluate_motion", "reacquisition_times", "subject_measurements"]
+__all__ = ["EvalOptions", "acceleration_error", "confidence_error_spearman", "evaluate_motion", "joint_jumps",
+           "reacquisition_times", "subject_measurements"]
 
 log = logging.getLogger(__name__)
 
@@ -54,81 +61,6 @@ def _stats(v: list[float]) -> dict[str, float]:
     return {"min": round(float(a.min()), 3), "avg": round(float(a.mean()), 3), "max": round(float(a.max()), 3)}
 
 
-def acceleration_error(frame: NDArray[np.int64], est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
-    """Mean joint acceleration error (metres per frame squared): the jitter of the published pose.
-
-    Over every three consecutive frames ``i - 1, i, i + 1`` that were all tracked steadily (the
-    caller leaves out initialisation, forced losses until the track is back, re-initialisations and
-    the frame a new skeleton is published, whose jumps are not jitter), the second
-    difference of the estimated root-relative joints minus that of the true ones, its norm averaged
-    over the joints and the triples (the "Accel" error of temporal human-pose papers). A pose that
-    trembles from frame to frame scores high even when its mean error is low.
-
-    Parameters
-    ----------
-    frame : (F,) int64
-        Frame number of each tracked frame (increasing).
-    est, true : (F, J, 3) float64
-        Root-relative joints.
-
-    Returns
-    -------
-    float
-        NaN when no three consecutive frames were tracked.
-    """
-    frame = np.asarray(frame)
-    if len(frame) < 3:
-        return float("nan")
-    ok = (frame[2:] - frame[:-2]) == 2
-    if not ok.any():
-        return float("nan")
-    d = np.asarray(est, np.float64) - np.asarray(true, np.float64)
-    acc = d[2:] - 2.0 * d[1:-1] + d[:-2]
-    return float(np.linalg.norm(acc[ok], axis=-1).mean())
-
-
-def reacquisition_times(t: NDArray[np.float64], err: NDArray[np.float64], losses: list[int], fps: float,
-                        within_m: float = 0.10, relative: float = 1.25, run: int = 3,
-                        min_left_s: float = 1.0) -> list[float]:
-    """Time (s) from each forced loss until the track is back.
-
-    Back means ``run`` frames in a row within ``within_m`` of the truth, or, where the track was
-    worse than that in the second before the loss, within ``relative`` x its median error then
-    (a take the tracker follows at 12 cm is back at 15 cm, not never). The time counts from the
-    loss to the first frame of the run. A loss not yet back with less than ``min_left_s`` of the
-    clip after it is not judged; one never back is ``inf``.
-
-    Parameters
-    ----------
-    t : (F,) float64
-        Timestamps of the evaluated frames.
-    err : (F,) float64
-        Root-relative mean joint error of each (metres).
-    losses : list of int
-        Index (into ``t``) of the frame at which each loss was forced.
-    fps : float
-
-    Returns
-    -------
-    list of float
-    """
-    out: list[float] = []
-    n_before = max(round(fps), 1)
-    for k in losses:
-        before = err[max(k - n_before, 0): k]
-        thr = max(within_m, relative * float(np.median(before))) if len(before) else within_m
-        ok = err[k + 1:] < thr
-        streak, found = 0, float("inf")
-        for j, good in enumerate(ok):
-            streak = streak + 1 if good else 0
-            if streak >= run:
-                found = float(t[k + 1 + j - run + 1] - t[k])
-                break
-        if np.isfinite(found) or t[-1] - t[k] >= min_left_s:  # not back, too little clip left: unjudged
-            out.append(found)
-    return out
-
-
 @dataclass
 class _Tally:
     """What :func:`evaluate_motion` gathers over the frames where the person is in view."""
@@ -143,6 +75,8 @@ class _Tally:
     acc_i: list[int] = field(default_factory=list)  # frame number, estimated and true root-relative joints
     acc_e: list[NDArray[np.float64]] = field(default_factory=list)  # of the steady frames (jitter)
     acc_t: list[NDArray[np.float64]] = field(default_factory=list)
+    world_e: list[NDArray[np.float64]] = field(default_factory=list)  # the same frames' joints in the world
+    world_t: list[NDArray[np.float64]] = field(default_factory=list)  # (jumps)
     digest: Any = field(default_factory=hashlib.sha256)  # the published pose stream, for regression checks
     t_pre: list[float] = field(default_factory=list)
     t_est: list[float] = field(default_factory=list)
@@ -168,6 +102,8 @@ class _Tally:
             self.acc_i.append(i)
             self.acc_e.append(je - je[0])
             self.acc_t.append(jt - jt[0])
+            self.world_e.append(np.asarray(je, np.float64))
+            self.world_t.append(np.asarray(jt, np.float64))
         self.root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
         self.errs2d.append(float(np.linalg.norm(fr.truth.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
         if steady:
@@ -239,18 +175,6 @@ def _eval_config(config: TrackerConfig, options: EvalOptions, scene: SyntheticSc
         given = {k: known[k] for k in ("height", *options.subject_measurements)}
         cfg = replace(cfg, body_candidates=(), body=given_body(given))
     return cfg
-
-
-def confidence_error_spearman(confidence: list[float], error: list[float]) -> float | None:
-    """Spearman's rank correlation between the published confidence and the frame's error (a
-    confidence that means something correlates negatively); None for fewer than 10 frames or a
-    constant series."""
-    c, e = np.asarray(confidence, np.float64), np.asarray(error, np.float64)
-    if len(c) < 10 or np.ptp(c) == 0 or np.ptp(e) == 0:
-        return None
-    from scipy.stats import spearmanr
-
-    return round(float(spearmanr(c, e).statistic), 3)
 
 
 def _scene_camera(working: Camera, options: EvalOptions) -> Camera | None:
@@ -358,6 +282,8 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
     t_tot = tally.t_tot
     total_ms = float(np.mean(t_tot)) if t_tot else float("nan")
     accel = acceleration_error(np.asarray(tally.acc_i, np.int64), np.asarray(tally.acc_e), np.asarray(tally.acc_t))
+    jumps, worst_jump = joint_jumps(np.asarray(tally.acc_i, np.int64), np.asarray(tally.world_e),
+                                    np.asarray(tally.world_t))
     return {
         "motion": motion.name,
         "frames": int(tally.present),
@@ -370,6 +296,8 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
         "mpjpe_after_3s_cm": _after(e_arr, np.asarray(tally.err_t), options.empty_prefix / options.fps + 3.0),
         "frames_within_10cm": round(float(np.mean(e_arr < 0.10)), 3) if len(e_arr) else 0.0,
         "accel_error_cm": round(accel * 100, 3) if np.isfinite(accel) else None,
+        "joint_jumps_15cm": jumps,
+        "worst_joint_jump_cm": round(worst_jump * 100, 2),
         "confidence_error_spearman": confidence_error_spearman(tally.confs, tally.errs),
         "reacquire_s_max": (None if not reacq else (round(max(reacq), 3) if np.isfinite(max(reacq)) else None)),
         "forced_losses": len(reacq),

@@ -259,8 +259,8 @@ class BuildDbOptions:
 class TrainAppearanceOptions:
     """``mocap-tracker train-appearance`` (and the training of a missing default network).
 
-    ``None`` is the default of each setting; ``posture_passes`` ``()`` means no posture-varied
-    passes; ``out`` None is ``out/appearance/net.npz``.
+    ``None`` is the default of each setting; ``posture_passes`` (``vary_passes``) ``()`` means no
+    posture-varied (randomised-scene) passes; ``out`` None is ``out/appearance/net.npz``.
     """
 
     out: str | None = None
@@ -269,6 +269,7 @@ class TrainAppearanceOptions:
     width: int | None = None
     passes: Passes | None = None
     posture_passes: Passes | None = None
+    vary_passes: Passes | None = None
     members: int | None = None
     takes: int | None = None
     scripts: tuple[str, ...] = ()

@@ -45,9 +45,10 @@ from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 from tracker_service.build.posture_variation import POSTURE_VERSION, PostureParams, vary_posture
 from tracker_service.cues.appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
 
-__all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "SCRIPT_ROW_BASE", "Samples", "TrainConfig", "config_samples",
-           "export_layers", "member_posture_passes", "render_samples", "render_take", "train_network",
-           "training_takes"]
+__all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "MEMBER_VARY_PASSES", "SCRIPT_ROW_BASE", "VARY_VERSION",
+           "Samples", "TrainConfig", "config_samples",
+           "export_layers", "member_posture_passes", "member_vary_passes", "render_samples", "render_take",
+           "train_network", "training_takes", "vary_axes"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +69,9 @@ class TrainConfig:
         another person, every ``every``-th frame.
     posture_passes : tuple of (int, int)
         More passes, their poses varied by ``posture`` (:mod:`tracker_service.build.posture_variation`).
+    vary_passes : tuple of (int, int)
+        More passes in a randomised scene: each take on its person varied along one or two axes of
+        :data:`tracker_service.scene.variation.AXES` (:func:`vary_axes`).
     posture : PostureParams
         How the posture passes vary the poses.
     epochs, batch : int
@@ -85,6 +89,7 @@ class TrainConfig:
     width: int = 24
     passes: tuple[tuple[int, int], ...] = ((1000, 3), (2000, 2), (3000, 2), (4000, 2))
     posture_passes: tuple[tuple[int, int], ...] = ()
+    vary_passes: tuple[tuple[int, int], ...] = ()
     posture: PostureParams = field(default_factory=PostureParams)
     epochs: int = 15
     batch: int = 64
@@ -106,10 +111,45 @@ MEMBER_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (
 MEMBER_POSTURE_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((7000, 3),), ((8000, 3),))
 
 
+#: Each network's passes in a randomised scene (:func:`vary_axes`).
+MEMBER_VARY_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((9000, 3),), ((10000, 3),))
+
+#: Bumped whenever :func:`vary_axes` (or what an axis draws) changes: cached renders are named with it.
+VARY_VERSION = 1
+
+
 def member_posture_passes(n: int) -> tuple[tuple[tuple[int, int], ...], ...]:
     """The default posture passes of an ensemble of ``n`` networks (networks beyond the defaults get
     none)."""
     return (*MEMBER_POSTURE_PASSES, *((),) * n)[:n]
+
+
+def member_vary_passes(n: int) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """The default randomised-scene passes of an ensemble of ``n`` networks (networks beyond the
+    defaults get none)."""
+    return (*MEMBER_VARY_PASSES, *((),) * n)[:n]
+
+
+def vary_axes(seed: int) -> tuple[str, ...]:
+    """The domain-randomisation axes of one training take on the person ``seed`` draws: one axis of
+    :data:`~tracker_service.scene.variation.AXES` (two thirds of the takes) or two, drawn from their
+    own stream of ``seed``, so that every axis is seen alone and in company.
+
+    Parameters
+    ----------
+    seed : int
+
+    Returns
+    -------
+    tuple of str
+        In :data:`~tracker_service.scene.variation.AXES`'s order.
+    """
+    from tracker_service.scene.variation import AXES
+
+    rng = np.random.default_rng([int(seed), 6])
+    k = 1 if rng.random() < 2 / 3 else 2
+    chosen = set(rng.choice(len(AXES), size=k, replace=False).tolist())
+    return tuple(a for i, a in enumerate(AXES) if i in chosen)
 
 
 @dataclass(frozen=True)
@@ -135,8 +175,8 @@ class Samples:
         return len(self.crops)
 
 
-def render_take(path: str | Path, seed: int, every: int, size: int, posture: PostureParams | None = None
-                ) -> Samples:
+def render_take(path: str | Path, seed: int, every: int, size: int, posture: PostureParams | None = None,
+                axes: tuple[str, ...] = ()) -> Samples:
     """Samples of one recording or gesture script played on the person ``seed`` chooses.
 
     Parameters
@@ -150,6 +190,8 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
     posture : PostureParams, optional
         Vary the poses first (:func:`tracker_service.build.posture_variation.vary_posture`, drawn from
         ``seed`` too).
+    axes : tuple of str, optional
+        Domain-randomisation axes of the scene (:class:`~tracker_service.scene.synthetic.SceneConfig`).
 
     Returns
     -------
@@ -164,7 +206,7 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
         motion = replace(motion, poses=vary_posture(motion.poses, motion.body, np.random.default_rng([seed, 1]),
                                                     posture))
     travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
-    cfg = SceneConfig(fps=30.0, in_place=bool(travel > 2.0))  # as evaluate_motion plays it
+    cfg = SceneConfig(fps=30.0, in_place=bool(travel > 2.0), variation=axes)  # as evaluate_motion plays it
     crops, masks, joints = [], [], []
     with SyntheticScene(motion, seed=seed, config=cfg) as scene:
         height = scene.subject.spec.height
@@ -186,10 +228,10 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
     return Samples(np.asarray(crops), np.asarray(masks), np.asarray(joints, np.float32))
 
 
-def _render_job(job: tuple[str, int, int, int, str, PostureParams | None]) -> str:
-    path, seed, every, size, out, posture = job
+def _render_job(job: tuple[str, int, int, int, str, PostureParams | None, bool]) -> str:
+    path, seed, every, size, out, posture, vary = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    s = render_take(path, seed, every, size, posture)
+    s = render_take(path, seed, every, size, posture, vary_axes(seed) if vary else ())
     tmp = out + ".partial.npz"
     np.savez_compressed(tmp, crops=s.crops, masks=s.masks, joints=s.joints)
     os.replace(tmp, out)
@@ -241,7 +283,7 @@ def _cache_name(row: int, path: str) -> str:
 
 def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[int, int]], size: int,
                    cache: Path, jobs: int = 1, progress: Callable[[int, int], None] | None = None,
-                   load: bool = True, posture: PostureParams | None = None) -> Samples:
+                   load: bool = True, posture: PostureParams | None = None, vary: bool = False) -> Samples:
     """Samples of every take and pass, rendered in ``jobs`` processes and cached.
 
     Parameters
@@ -261,15 +303,19 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
     posture : PostureParams, optional
         Render the poses varied (:func:`render_take`); cached in folders named with the parameters
         (``<seed_base>_<every>_<size>_posture<version>_s<share>t<trunk>k<knee>``).
+    vary : bool
+        Render each take in a randomised scene (:func:`vary_axes`); cached in folders whose names end
+        in ``_vary<version>``.
 
     Returns
     -------
     Samples
     """
-    todo: list[tuple[str, int, int, int, str, PostureParams | None]] = []
+    todo: list[tuple[str, int, int, int, str, PostureParams | None, bool]] = []
     files: list[tuple[int, Path]] = []
     tag = ("" if posture is None else
            f"_posture{POSTURE_VERSION}_s{posture.share:g}t{posture.trunk_deg:g}k{posture.knee_deg:g}")
+    tag += f"_vary{VARY_VERSION}" if vary else ""
     for base, every in passes:
         folder = cache / f"{base}_{every}_{size}{tag}"
         folder.mkdir(parents=True, exist_ok=True)
@@ -277,7 +323,7 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
             f = folder / _cache_name(row, path)
             files.append((row, f))
             if not f.is_file():
-                todo.append((str(path), base + row, every, size, str(f), posture))
+                todo.append((str(path), base + row, every, size, str(f), posture, vary))
     done = len(files) - len(todo)
     if progress is not None:
         progress(done, len(files))
@@ -314,8 +360,8 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
 
 def config_samples(entries: Sequence[tuple[int, str]], config: TrainConfig, cache: Path, jobs: int = 1
                    ) -> Samples:
-    """A network's training samples: its passes and its posture passes (:func:`render_samples`,
-    rendered where the cache lacks them).
+    """A network's training samples: its passes, its posture passes and its randomised-scene passes
+    (:func:`render_samples`, rendered where the cache lacks them).
 
     Parameters
     ----------
@@ -333,6 +379,8 @@ def config_samples(entries: Sequence[tuple[int, str]], config: TrainConfig, cach
     if config.posture_passes:
         parts.append(render_samples(entries, config.posture_passes, config.size, cache, jobs,
                                     posture=config.posture))
+    if config.vary_passes:
+        parts.append(render_samples(entries, config.vary_passes, config.size, cache, jobs, vary=True))
     if len(parts) == 1:
         return parts[0]
     return Samples(np.concatenate([p.crops for p in parts]), np.concatenate([p.masks for p in parts]),

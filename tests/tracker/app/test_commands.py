@@ -84,6 +84,10 @@ def test_build_db_and_train_appearance_options() -> None:
     t = parse(["train-appearance", "--posture-passes", "9:60", "--no-scripts"])
     assert t.posture_passes == (((9, 60),),) and t.scripts == ()
     assert parse(["train-appearance"]).posture_passes is None  # the defaults
+    assert parse(["train-appearance"]).vary_passes is None
+    t = parse(["train-appearance", "--no-vary"])
+    assert t.vary_passes == () and t.posture_passes is None
+    assert parse(["train-appearance", "--vary-passes", "9:3;10:3"]).vary_passes == (((9, 3),), ((10, 3),))
 
 
 def test_replay_render_and_demo_options() -> None:

@@ -92,3 +92,19 @@ def test_a_widened_camera_brought_to_the_working_size_is_the_working_camera(size
     assert back.size == cam.size
     assert back.fx == pytest.approx(cam.fx, rel=2e-3) and back.fy == pytest.approx(cam.fy, rel=2e-3)
     assert abs(back.cx - cam.cx) <= 0.5 and abs(back.cy - cam.cy) <= 0.5  # the crop's rounding
+
+
+def test_joint_jumps_count_only_what_the_truth_does_not_do() -> None:
+    from tracker_service.app.error_metrics import joint_jumps
+
+    frames = np.arange(8)
+    true = np.zeros((8, 3, 3))
+    true[4:, 1, 0] = 0.5  # the truth itself moves a joint 50 cm in one frame: no jump
+    assert joint_jumps(frames, true + 0.02, true) == (0, pytest.approx(0.0, abs=1e-12))
+    est = true.copy()
+    est[5, 2, 1] += 0.20  # a joint pops 20 cm for one frame: two pairs jump (out and back)
+    pairs, worst = joint_jumps(frames, est, true)
+    assert pairs == 2 and worst == pytest.approx(0.20)
+    assert joint_jumps(frames, est, true, limit_m=0.25)[0] == 0
+    assert joint_jumps(np.array([0, 2, 4, 5, 7, 9, 11, 13]), est, true)[0] == 0  # (4, 5) is the only pair: no pop
+    assert joint_jumps(np.arange(1), est[:1], true[:1]) == (0, 0.0)

@@ -95,8 +95,8 @@ def test_the_appearance_option(tmp_path: Path, weak_appearance_net: Path) -> Non
 @pytest.mark.slow
 def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     """``mocap-tracker train-appearance`` on two takes and a folder of one gesture script, one short
-    pass and one posture-varied pass per network, one epoch: an ensemble of two networks in one file
-    the tracker loads, and its rendered views cached beside it (the script's by name)."""
+    pass, one posture-varied pass and one randomised-scene pass per network, one epoch: an ensemble
+    of two networks in one file the tracker loads, and its rendered views cached beside it (the script's by name)."""
     import shutil
     import subprocess
     import sys
@@ -109,7 +109,8 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     shutil.copy(REPO / "game_client" / "scripts" / "crouch.toml", scripts)
     (scripts / "labels.toml").write_text("title = 'not a script'\n")
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--takes", "2", "--passes",
-                        "7:60;8:60", "--posture-passes", "9:60;10:60", "--epochs", "1", "--width", "8", "--jobs", "1",
+                        "7:60;8:60", "--posture-passes", "9:60;10:60", "--vary-passes", "11:60;12:60",
+                        "--epochs", "1", "--width", "8", "--jobs", "1",
                         "--scripts", str(scripts), "--out", str(out)],
                        cwd=REPO, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
@@ -119,6 +120,7 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     assert [Path(p).name for p in net.meta["scripts"]] == ["crouch.toml"]
     assert [m["config"]["passes"] for m in net.meta["members"]] == [[[7, 60]], [[8, 60]]]
     assert [m["config"]["posture_passes"] for m in net.meta["members"]] == [[[9, 60]], [[10, 60]]]
+    assert [m["config"]["vary_passes"] for m in net.meta["members"]] == [[[11, 60]], [[12, 60]]]
     assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
     assert [m["config"]["width"] for m in net.meta["members"]] == [8, 8]
     assert net.networks[0][0].weight.shape[0] == 8  # the first convolution's channels
@@ -127,10 +129,13 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
         assert len(names) == 3 and names[-1].startswith("script_crouch_900_")
     for folder in ("9_60_64_posture1_s0.5t25k70", "10_60_64_posture1_s0.5t25k70"):  # posture passes, cached apart
         assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
+    for folder in ("11_60_64_vary1", "12_60_64_vary1"):  # randomised-scene passes, cached apart
+        assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--members", "3", "--out",
                         str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "--passes" in r.stderr and "Traceback" not in r.stderr
-    for flags in (["--no-posture", "--posture-passes", "9:60"], ["--no-scripts", "--scripts", str(scripts)]):
+    for flags in (["--no-posture", "--posture-passes", "9:60"], ["--no-vary", "--vary-passes", "9:60"],
+                  ["--no-scripts", "--scripts", str(scripts)]):
         r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", *flags, "--out",
                             str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)
         assert r.returncode == 2 and "not allowed with" in r.stderr  # contradictory flags are refused

@@ -53,6 +53,13 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
                          "posture_variation.py), one list per network (default: 7000:3 for the first, 8000:3 "
                          "for the second, none for more)")
     pg.add_argument("--no-posture", action="store_true", help="no posture-varied passes")
+    vg = ap.add_mutually_exclusive_group()
+    vg.add_argument("--vary-passes", type=parse_passes, metavar="SEED:EVERY,...[;...]",
+                    help="more passes in a randomised scene: each take varied along one or two of the axes body, "
+                         "clothing, appearance, backdrop, lights, sensor, compression (tracker_service/scene/"
+                         "variation.py), one list per network (default: 9000:3 for the first, 10000:3 for the "
+                         "second, none for more)")
+    vg.add_argument("--no-vary", action="store_true", help="no randomised-scene passes")
     ap.add_argument("--members", type=int, metavar="N",
                     help="networks in the ensemble, each trained on its own passes with its own initial weights "
                          "(default: as many as --passes lists, else 2)")
@@ -71,7 +78,8 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
 def options_from_args(args: argparse.Namespace) -> TrainAppearanceOptions:
     return TrainAppearanceOptions(
         out=args.out, mocap=args.mocap, epochs=args.epochs, width=args.width, passes=args.passes,
-        posture_passes=() if args.no_posture else args.posture_passes, members=args.members, takes=args.takes,
+        posture_passes=() if args.no_posture else args.posture_passes,
+        vary_passes=() if args.no_vary else args.vary_passes, members=args.members, takes=args.takes,
         scripts=script_dirs(args), jobs=args.jobs)
 
 

@@ -36,24 +36,29 @@ def _pass_plan(options: TrainAppearanceOptions) -> tuple[int, Passes]:
 
 def _configs(options: TrainAppearanceOptions, n: int, plan: Passes) -> list[Any]:
     """One :class:`~tracker_service.build.appearance_train.TrainConfig` per network."""
-    from tracker_service.build.appearance_train import TrainConfig, member_posture_passes, member_vary_passes
+    from tracker_service.build.appearance_train import (
+        MEMBER_POSTURE_PASSES,
+        MEMBER_VARY_PASSES,
+        TrainConfig,
+        member_extra_passes,
+    )
 
-    postures = member_posture_passes(n) if options.posture_passes is None else options.posture_passes
-    if postures and len(postures) != n:
-        raise ValueError(f"{n} network(s) need {n} posture pass list(s) separated by ';' in --posture-passes, "
-                         f"got {len(postures)}")
-    varied = member_vary_passes(n) if options.vary_passes is None else options.vary_passes
-    if varied and len(varied) != n:
-        raise ValueError(f"{n} network(s) need {n} randomised pass list(s) separated by ';' in --vary-passes, "
-                         f"got {len(varied)}")
+    extra: dict[str, Passes] = {}
+    for field_name, table, flag, what in (("posture_passes", MEMBER_POSTURE_PASSES, "--posture-passes", "posture"),
+                                          ("vary_passes", MEMBER_VARY_PASSES, "--vary-passes", "randomised")):
+        given = getattr(options, field_name)
+        lists = member_extra_passes(table, n) if given is None else given
+        if lists and len(lists) != n:
+            raise ValueError(f"{n} network(s) need {n} {what} pass list(s) separated by ';' in {flag}, "
+                             f"got {len(lists)}")
+        extra[field_name] = lists or ((),) * n  # none: an empty list for every network
     base = TrainConfig()
     if options.epochs is not None:
         base = replace(base, epochs=options.epochs)
     if options.width is not None:
         base = replace(base, width=options.width)
-    return [replace(base, passes=plan[k], posture_passes=postures[k] if postures else (),
-                    vary_passes=varied[k] if varied else (), seed=k)
-            for k in range(n)]
+    return [replace(base, passes=plan[k], posture_passes=extra["posture_passes"][k],
+                    vary_passes=extra["vary_passes"][k], seed=k) for k in range(n)]
 
 
 def _render_views(entries: list[Any], configs: list[Any], data: Path, jobs: int) -> None:

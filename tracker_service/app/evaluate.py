@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.motion import Motion
+from protocol.skeleton import N_JOINTS
 from tracker_service.app.error_metrics import (
     acceleration_error,
     confidence_error_spearman,
@@ -72,11 +73,9 @@ class _Tally:
     err_t: list[float] = field(default_factory=list)  # their timestamps
     root_errs: list[float] = field(default_factory=list)
     errs2d: list[float] = field(default_factory=list)
-    acc_i: list[int] = field(default_factory=list)  # frame number, estimated and true root-relative joints
-    acc_e: list[NDArray[np.float64]] = field(default_factory=list)  # of the steady frames (jitter)
+    acc_i: list[int] = field(default_factory=list)  # frame number, estimated and true joints in the world
+    acc_e: list[NDArray[np.float64]] = field(default_factory=list)  # of the steady frames (jitter, jumps)
     acc_t: list[NDArray[np.float64]] = field(default_factory=list)
-    world_e: list[NDArray[np.float64]] = field(default_factory=list)  # the same frames' joints in the world
-    world_t: list[NDArray[np.float64]] = field(default_factory=list)  # (jumps)
     digest: Any = field(default_factory=hashlib.sha256)  # the published pose stream, for regression checks
     t_pre: list[float] = field(default_factory=list)
     t_est: list[float] = field(default_factory=list)
@@ -100,10 +99,8 @@ class _Tally:
         if steady and not in_loss and not res.reinitialised and not res.body_changed:
             # jitter of steady tracking: no loss, recovery or new skeleton
             self.acc_i.append(i)
-            self.acc_e.append(je - je[0])
-            self.acc_t.append(jt - jt[0])
-            self.world_e.append(np.asarray(je, np.float64))
-            self.world_t.append(np.asarray(jt, np.float64))
+            self.acc_e.append(np.asarray(je, np.float64))
+            self.acc_t.append(np.asarray(jt, np.float64))
         self.root_errs.append(float(np.linalg.norm(je[0] - jt[0])))
         self.errs2d.append(float(np.linalg.norm(fr.truth.camera.project(je) - fr.truth.joints_2d, axis=1).mean()))
         if steady:
@@ -281,9 +278,11 @@ def _result(motion: Motion, loaded: LoadedDatabase, config: TrackerConfig, optio
     lvl = np.asarray(tally.evals, dtype=np.float64) if tally.evals else np.zeros((0, 3))
     t_tot = tally.t_tot
     total_ms = float(np.mean(t_tot)) if t_tot else float("nan")
-    accel = acceleration_error(np.asarray(tally.acc_i, np.int64), np.asarray(tally.acc_e), np.asarray(tally.acc_t))
-    jumps, worst_jump = joint_jumps(np.asarray(tally.acc_i, np.int64), np.asarray(tally.world_e),
-                                    np.asarray(tally.world_t))
+    steady_i = np.asarray(tally.acc_i, np.int64)
+    world_e = np.asarray(tally.acc_e).reshape(len(steady_i), N_JOINTS, 3)
+    world_t = np.asarray(tally.acc_t).reshape(len(steady_i), N_JOINTS, 3)
+    accel = acceleration_error(steady_i, world_e - world_e[:, :1], world_t - world_t[:, :1])  # root-relative
+    jumps, worst_jump = joint_jumps(steady_i, world_e, world_t)
     return {
         "motion": motion.name,
         "frames": int(tally.present),

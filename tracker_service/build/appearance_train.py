@@ -47,7 +47,7 @@ from tracker_service.cues.appearance import AppearanceNet, Layer, camera_joints,
 
 __all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "MEMBER_VARY_PASSES", "SCRIPT_ROW_BASE", "VARY_VERSION",
            "Samples", "TrainConfig", "config_samples",
-           "export_layers", "member_posture_passes", "member_vary_passes", "render_samples", "render_take",
+           "export_layers", "member_extra_passes", "render_samples", "render_take",
            "train_network", "training_takes", "vary_axes"]
 
 log = logging.getLogger(__name__)
@@ -118,16 +118,11 @@ MEMBER_VARY_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((9000, 3),), ((1
 VARY_VERSION = 1
 
 
-def member_posture_passes(n: int) -> tuple[tuple[tuple[int, int], ...], ...]:
-    """The default posture passes of an ensemble of ``n`` networks (networks beyond the defaults get
-    none)."""
-    return (*MEMBER_POSTURE_PASSES, *((),) * n)[:n]
-
-
-def member_vary_passes(n: int) -> tuple[tuple[tuple[int, int], ...], ...]:
-    """The default randomised-scene passes of an ensemble of ``n`` networks (networks beyond the
-    defaults get none)."""
-    return (*MEMBER_VARY_PASSES, *((),) * n)[:n]
+def member_extra_passes(table: tuple[tuple[tuple[int, int], ...], ...], n: int
+                        ) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """The default extra passes (:data:`MEMBER_POSTURE_PASSES`, :data:`MEMBER_VARY_PASSES`) of an
+    ensemble of ``n`` networks: networks beyond the table get none."""
+    return (*table, *((),) * n)[:n]
 
 
 def vary_axes(seed: int) -> tuple[str, ...]:

@@ -380,11 +380,11 @@ def test_gesture_scripts_join_the_training_takes(tmp_path: Path) -> None:
 
 
 def test_default_posture_passes_fit_any_ensemble_size() -> None:
-    from tracker_service.build.appearance_train import MEMBER_POSTURE_PASSES, member_posture_passes
+    from tracker_service.build.appearance_train import MEMBER_POSTURE_PASSES, member_extra_passes
 
-    assert member_posture_passes(1) == MEMBER_POSTURE_PASSES[:1]
-    assert member_posture_passes(2) == MEMBER_POSTURE_PASSES
-    assert member_posture_passes(3) == (*MEMBER_POSTURE_PASSES, ())
+    assert member_extra_passes(MEMBER_POSTURE_PASSES, 1) == MEMBER_POSTURE_PASSES[:1]
+    assert member_extra_passes(MEMBER_POSTURE_PASSES, 2) == MEMBER_POSTURE_PASSES
+    assert member_extra_passes(MEMBER_POSTURE_PASSES, 3) == (*MEMBER_POSTURE_PASSES, ())
 
 
 def test_the_cue_weighs_the_filter_towards_what_the_network_sees(small_db, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]

@@ -236,7 +236,7 @@ def main() -> int:
     ap.add_argument("--pose", choices=("mean", "map"), default="mean",
                     help="the tracker's published pose, as `mocap-tracker run --pose` (default mean)")
     ap.add_argument("--appearance", metavar="PATH|off",
-                    help="the appearance cue's network (default: out/appearance/net.npz when it exists, as "
+                    help="the appearance cue's network (default: the one shipped in the package, as "
                          "`mocap-tracker run`; off: the tracker without the cue)")
     ap.add_argument("--cache", metavar="DIR", help="reuse tracked sequences stored in DIR and store new ones there "
                                                    "(e.g. out/game_tracked_cache; default: track everything afresh)")

@@ -188,8 +188,13 @@ def test_body_choice_is_as_tall_as_the_measured_stature() -> None:
     assert np.allclose(choice.body.offsets / 1.77, ly.offsets / ly.height, atol=5e-4)
     assert np.allclose(choice.body.capsule_radii / 1.77, ly.capsule_radii / ly.height, atol=1e-3)
     assert BodyChoice.from_scores(scores, db_body, 1.77, sized=False).body is ly
+    # a man of 2.02 m, taller than every model of the family (1.80 m at most), keeps his stature
+    assert BodyChoice.from_scores(scores, db_body, 2.02).body.height == pytest.approx(2.02)
     # a measurement far beyond the scored models (a broken silhouette) is held near them
-    assert BodyChoice.from_scores(scores, db_body, 2.6).body.height == pytest.approx(1.80 + SIZE_MARGIN_M)
+    assert BodyChoice.from_scores(scores, db_body, 2.6).body.height == pytest.approx(
+        min(1.80 + SIZE_MARGIN_M, STATURE_RANGE_M[1]))
+    assert BodyChoice.from_scores({"cPA": [0.2]}, db_body, 2.6).body.height == pytest.approx(
+        body_model("cPA").body.height + SIZE_MARGIN_M)
     assert BodyChoice.from_scores({"cPA": [0.2]}, db_body, 0.5).body.height == pytest.approx(STATURE_RANGE_M[0])
 
 

@@ -151,8 +151,9 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
                    help="One Euro speed coefficient of the joints' and the root's rotations (default 1.5; "
                         "higher: less lag in fast moves)")
     p.add_argument("--appearance", metavar="PATH|off",
-                   help="the appearance cue's network (default: out/appearance/net.npz when it exists; "
-                        "mocap-tracker train-appearance makes it, once); off: no cue")
+                   help="the appearance cue's network (default: the one shipped in the package, "
+                        "tracker_service/cues/models/appearance-vN.npz; a file mocap-tracker "
+                        "train-appearance wrote; off: no cue)")
     p.add_argument("--no-refine", action="store_true",
                    help="with the appearance cue: publish the filter's pose as it is, not refined toward the "
                         "joints the network reads")

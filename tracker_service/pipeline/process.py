@@ -200,17 +200,23 @@ def _ghost(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_
         return replace(state, ghost_run=0, ghost_recent=()), 0.0
     bg = state.background
     params = config.ghost
-    g = ghost_fraction(bg.bright_mean, frame, mask, params, bg.smooth_sigma)
+    # only the outline where the first background's spread shows motion while it was learned votes ghost
+    # (a background learned again is a robust median of a person moving about: its spread says nothing)
+    moved = params.motion_factor > 0 and not state.relearns
+    g = ghost_fraction(bg.bright_mean, frame, mask, params, bg.smooth_sigma, bg.bright_std if moved else None)
     recent = (*state.ghost_recent, g)[-params.window:]
     level = float(np.median(recent))
-    if state.supported >= params.start_poses:
-        threshold = params.threshold
+    if moved:
+        threshold, relearn_level = params.moved_threshold, params.moved_relearn_level
+    elif state.supported >= params.start_poses:
+        threshold, relearn_level = params.threshold, params.relearn_level
     else:
         threshold = params.threshold_relearned if state.relearns else params.threshold_start
+        relearn_level = params.relearn_level
     if level <= threshold and g <= params.clear:
         return replace(state, ghost_run=0, ghost_recent=recent), g
     run = state.ghost_run + 1
-    if run >= params.frames and level > params.relearn_level:
+    if run >= params.frames and level > relearn_level:
         return _relearn(state, "the silhouette is the ghost of a person learned into the background "
                         "(%d frames, ghost fraction %.2f)", run, level), g
     return replace(state, ghost_run=run, ghost_recent=recent), g

@@ -53,6 +53,42 @@ def test_the_hole_left_by_a_person_learned_into_the_background_is_a_ghost(textur
     assert 0.3 < both < 0.7  # half of the outline is the ghost's, half the person's
 
 
+def test_a_room_object_hidden_by_clothes_is_no_ghost_where_the_model_did_not_move(rng: np.random.Generator) -> None:
+    """A dark object stands in the room (a plant); a person in a shirt the colour of the wall stands
+    in front of it: the shirt shows only over the object, an outline on the model's edges -- the
+    ghost's signature. Two facts tell them apart: a person learned into the background moved while
+    it was learned (their outline spread), the object did not; and a person who stood still then
+    moved away leaves a ghost outside the outline of where they are now, the object's piece of
+    shirt lies within it."""
+    room = _room(rng, 0.0)
+    body = _person(160)
+    rows = np.arange(240)[:, None]
+    head, legs = body & (rows < 80), body & (rows >= 160)
+    plant = np.zeros((240, 320), np.uint8)
+    cv2.ellipse(plant, (160, 120), (18, 30), 0, 0, 360, 1, -1)
+    plant = plant.astype(bool)
+    model = room.copy()
+    model[plant] = 40.0
+    frame = room.copy()  # the shirt over the plant looks like the wall
+    frame[head | legs] = 40.0
+    mask = head | legs | plant
+    still = np.full((240, 320), 2.0, np.float32)  # the camera's noise everywhere: nothing moved
+    assert ghost_fraction(model, _bgr(frame, rng), mask) > 0.3  # by edges alone: a ghost
+    assert ghost_fraction(model, _bgr(frame, rng), mask, background_std=still) < 0.05
+    # a person learned there swayed while the room was learned: their outline's spread is high
+    m = plant.astype(np.uint8)
+    swayed = still.copy()
+    swayed[cv2.dilate(m, np.ones((5, 5), np.uint8)) > cv2.erode(m, np.ones((5, 5), np.uint8))] = 15.0
+    assert ghost_fraction(model, _bgr(frame, rng), mask, background_std=swayed) > 0.3
+    # one who stood still and stepped aside: their ghost lies apart from them
+    was, now = _person(100), _person(220)
+    model2, frame2 = room.copy(), room.copy()
+    model2[was], frame2[now] = 40.0, 40.0
+    assert ghost_fraction(model2, _bgr(frame2, rng), was | now, background_std=still) > 0.3
+    off = GhostParams(motion_factor=0.0)
+    assert ghost_fraction(model, _bgr(frame, rng), mask, off, background_std=still) > 0.3
+
+
 def test_a_small_or_empty_silhouette_is_not_judged(rng: np.random.Generator) -> None:
     room = _room(rng, 10.0)
     tiny = np.zeros((240, 320), bool)

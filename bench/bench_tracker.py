@@ -108,7 +108,8 @@ def main() -> int:
     ap.add_argument("--cpu", type=int, default=0,
                     help="pin the benchmark to this one CPU (the targets are per core; -1: do not pin)")
     ap.add_argument("--appearance", metavar="PATH|off",
-                    help="the appearance cue's network (default: out/appearance/net.npz, trained on first use)")
+                    help="the appearance cue's network (default: the one shipped in the package, as "
+                         "`mocap-tracker run`; off: no cue)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     threadpool_limits(1, user_api="blas")  # one core per frame, as mocap-tracker runs (tracker_service/app/entry.py)
@@ -168,6 +169,8 @@ def main() -> int:
         "xor_no_reading_filter": TrackerConfig(distance="xor", reading_filter=None),
         # the ensemble's first network alone, everything else as the default
         "xor_one_network": TrackerConfig(distance="xor"),
+        # half as many appearance proposals
+        "xor_proposals_16": TrackerConfig(distance="xor", filter=FilterParams(appearance_proposals=16)),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not
     configs = {k: (c if k in ("xor_silhouette_only", "xor_no_appearance") else replace(c, appearance=net))
@@ -210,16 +213,18 @@ def main() -> int:
                          "forced_losses": int(sum(r["forced_losses"] for r in rs)),
                          "reacquired": int(sum(r["reacquired"] for r in rs)),
                          "reacquire_s_max_of_reacquired": max((x for x in re if x is not None), default=None),
-                         "ms_total_avg": round(float(np.mean([r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
-                         "ms_total_max": round(float(np.max([r["ms_per_frame"]["total"]["max"] for r in rs])), 2),
+                         "ms_total_avg": round(float(np.nanmean([r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
+                         "ms_total_max": round(float(np.nanmax([r["ms_per_frame"]["total"]["max"] for r in rs])), 2),
                          "initialisation_ms_avg": round(float(np.mean([r["initialisation_ms"] for r in rs])), 1),
-                         "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs],
-                                                    axis=0).round(0).tolist()}
+                         "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs
+                                                     if r["distance_evals_per_level"]], axis=0).round(0).tolist(),
+                         "takes_without_steady_frames": sum(not r["distance_evals_per_level"] for r in rs)}
     res["summary"] = summary
     res["per_take"] = {k: [{kk: r[kk] for kk in ("take", "mpjpe_cm", "root_error_cm", "frames_within_10cm",
                                                  "accel_error_cm", "joint_jumps_15cm", "reacquire_s_max",
-                                                 "body_selected",
-                                                 "subject_height_m")} for r in v]
+                                                 "body_selected", "subject_height_m", "body_height_m",
+                                                 "stature_measured_m", "background_relearns", "withheld",
+                                                 "tracked_frames", "frames")} for r in v]
                        for k, v in rows.items()}
     if not args.no_pyramid:
         res["pyramid"] = pyramid_speedup(loaded)

@@ -43,6 +43,7 @@ from tracker_service.estimators.base import Observation
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.pipeline.process import TrackerConfig
 from tracker_service.pipeline.warmup import warm_up
+from tracker_service.silhouette.background import BackgroundParams
 from tracker_service.silhouette.distance import RunSet
 from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.placement import observed_placement
@@ -169,6 +170,8 @@ def main() -> int:
         "xor_no_reading_filter": TrackerConfig(distance="xor", reading_filter=None),
         # the ensemble's first network alone, everything else as the default
         "xor_one_network": TrackerConfig(distance="xor"),
+        # the opening alone: no thin limb brought back by reconstruction
+        "xor_no_reconstruct": TrackerConfig(distance="xor", background=BackgroundParams(reconstruct=False)),
         # half as many appearance proposals
         "xor_proposals_16": TrackerConfig(distance="xor", filter=FilterParams(appearance_proposals=16)),
     }

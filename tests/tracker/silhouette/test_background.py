@@ -201,6 +201,23 @@ def test_the_parts_of_a_person_split_by_a_wall_coloured_shirt_are_kept() -> None
     assert np.array_equal(out, clean_mask_reference(m, BackgroundParams(open_px=1, close_px=1)))
 
 
+def test_a_thin_arm_the_opening_erases_comes_back_where_it_touches_the_person() -> None:
+    """Opening by reconstruction: a 2-pixel arm raised from the shoulder (bare skin against a wall
+    of nearly its colour) survives; a speck and a thin line apart from the person do not."""
+    m = np.zeros((120, 160), bool)
+    m[30:110, 70:90] = True  # the body
+    for k in range(25):  # an arm raised up and out from the shoulder, 2 px wide
+        m[30 - k, 89 + k:91 + k] = True
+    m[60:62, 130:150] = True  # a thin line apart
+    m[10:12, 20:22] = True  # a speck
+    out = clean_mask(m, BackgroundParams())
+    assert out[80, 80] and out[18, 101] and out[8, 111]
+    assert not out[61, 140] and not out[11, 21]
+    opened = clean_mask(m, BackgroundParams(reconstruct=False))
+    assert opened[80, 80] and not opened[18, 101]
+    assert np.array_equal(out, clean_mask_reference(m, BackgroundParams()))
+
+
 def test_a_noisy_camera_is_smoothed_before_subtraction(rng: np.random.Generator) -> None:
     base = _room(rng)
     quiet = learn_background(_frames(rng, base, 10))

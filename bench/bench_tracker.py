@@ -174,10 +174,13 @@ def main() -> int:
         "xor_no_reconstruct": TrackerConfig(distance="xor", background=BackgroundParams(reconstruct=False)),
         # half as many appearance proposals
         "xor_proposals_16": TrackerConfig(distance="xor", filter=FilterParams(appearance_proposals=16)),
+        # the tree filter's estimate refined to the nearest silhouette likelihood mode (ELMO §3.2-3.3)
+        "xor_tree_elmo": TrackerConfig(distance="xor", estimator="tree-elmo"),
+        "xor_tree_elmo_no_appearance": TrackerConfig(distance="xor", estimator="tree-elmo"),
     }
     # the product's default carries the appearance cue; the paper's observation model and the row without it do not
-    configs = {k: (c if k in ("xor_silhouette_only", "xor_no_appearance") else replace(c, appearance=net))
-               for k, c in configs.items()}
+    no_cue = ("xor_silhouette_only", "xor_no_appearance", "xor_tree_elmo_no_appearance")
+    configs = {k: (c if k in no_cue else replace(c, appearance=net)) for k, c in configs.items()}
     if net is not None:
         configs["xor_one_network"] = replace(configs["xor_one_network"], appearance=replace(net, members=()))
     given = {"xor_given_height": ("height",),

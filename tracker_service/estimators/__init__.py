@@ -5,7 +5,8 @@
 hierarchical particle filter of the cardbox paper with deterministic or stratified resampling;
 ``drs-cardbox`` / ``srs-cardbox`` with the paper's 3D cardbox body model) and
 ``elmo`` (Demirdjian et al.'s exploration of likelihood modes: parameter-sensitive hashing over the
-database's leaves, local refinement, reweighting by a wide temporal prior).
+database's leaves, local refinement, reweighting by a wide temporal prior); ``tree-elmo`` (the tree
+filter's estimate refined to the nearest likelihood mode, ELMO's §3.2-3.3 seeded by the tree).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from tracker_service.estimators.tree_filter.model import FilterDB, FilterParams
 __all__ = ["ESTIMATORS", "make_estimator"]
 
 #: The estimators ``--estimator`` accepts.
-ESTIMATORS = ("tree", "condensation", "drs", "srs", "elmo", "drs-cardbox", "srs-cardbox")
+ESTIMATORS = ("tree", "tree-elmo", "condensation", "drs", "srs", "elmo", "drs-cardbox", "srs-cardbox")
 
 
 def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: FilterParams,
@@ -30,7 +31,7 @@ def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: 
 
     Parameters
     ----------
-    name : {'tree', 'condensation', 'drs', 'srs', 'elmo'}
+    name : one of ESTIMATORS
     db : FilterDB
         The template database (the tree filter searches it).
     body : Body
@@ -50,6 +51,10 @@ def make_estimator(name: str, db: FilterDB, body: Body, camera: Camera, params: 
 
     if name == "tree":
         return TreeFilter(db, params)
+    if name == "tree-elmo":
+        from tracker_service.estimators.tree_elmo import TreeElmo
+
+        return TreeElmo(db, body, camera, params)
     rng = np.random.default_rng(seed)
     if name == "condensation":
         from tracker_service.estimators.condensation import Condensation

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from tracker_service.app import cli
-from tracker_service.app.estimator_bench import ESTIMATOR_NAMES, PLOTS, BenchOptions
+from tracker_service.app.estimator_bench import ESTIMATOR_NAMES, PLOTS, BenchOptions, cost_mean, spread_per_frame
 from tracker_service.estimators import ESTIMATORS
 
 
@@ -38,6 +38,8 @@ def test_a_tiny_run_writes_the_table_and_the_plots(tmp_path: Path, capsys: pytes
     assert len(drs["per_frame_cm"]) == 6 and len(drs["per_joint_mean_cm"]) == len(report["meta"]["joint_names"])
     assert drs["evals_per_frame"] > 0 and 0.0 <= drs["within_10cm"] <= 1.0
     assert [r["seed"] for r in report["repeats"]["drs"]] == [0, 1]
+    assert all(len(r["cost_per_frame"]) == 6 and min(r["cost_per_frame"]) >= 0 for r in report["repeats"]["drs"])
+    assert "2D cost" in table and "spread over the seeds" in table
     for r in (tree, drs):  # a forced loss in the middle of every clip
         assert r["losses"] >= 1 and 0 <= r["recovered"] <= r["losses"]
         assert r["recovered"] == 0 or 1 <= r["recovery_frames_avg"] <= r["recovery_frames_max"]
@@ -45,3 +47,11 @@ def test_a_tiny_run_writes_the_table_and_the_plots(tmp_path: Path, capsys: pytes
     for name in PLOTS:
         png = (out / name).read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+
+
+def test_run_to_run_spread_is_the_std_over_runs_per_frame_averaged() -> None:
+    runs = [{"joint_angle_deg": [0.0, 10.0], "cost_per_frame": [0.01, 0.03]},
+            {"joint_angle_deg": [2.0, 10.0], "cost_per_frame": [0.01, 0.01]}]
+    assert spread_per_frame(runs) == 0.5  # std 1 on the first frame, 0 on the second
+    assert abs(spread_per_frame(runs, "cost_per_frame") - 0.005) < 1e-12
+    assert abs(cost_mean(runs) - 0.015) < 1e-12

@@ -129,7 +129,8 @@ def add_tracker_args(p: argparse.ArgumentParser, *, subject: bool) -> None:
                         + (" or subject[:KEY,...] (the synthetic person's own, all or those keys)"
                            if subject else ""))
     p.add_argument("--estimator", choices=list(ESTIMATORS), default="tree",
-                   help="pose estimator: tree (Okada & Stenger's tree filter), condensation (1000 particles), "
+                   help="pose estimator: tree (Okada & Stenger's tree filter), tree-elmo (the tree filter's estimate "
+                        "refined to the nearest silhouette likelihood mode), condensation (1000 particles), "
                         "drs / srs (hierarchical particle filter, deterministic / stratified resampling; "
                         "drs-cardbox / srs-cardbox with the paper's 3D cardbox body model), "
                         "elmo (likelihood modes: hashing, local search, wide temporal prior) (default: tree)")

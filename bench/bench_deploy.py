@@ -3,13 +3,16 @@ TLS) at 30 and 60 Hz against peer to peer, and one tracker fanned out to many cl
 
 Usage::
 
-    .venv/bin/python bench/bench_deploy.py [--frames N] [--clients 100] [--procs 10] [--json]
+    .venv/bin/python bench/bench_deploy.py [--frames N] [--tracker-frames 300] [--clients 100] [--procs 10] [--json]
 
 * **Latency**: a publisher and a subscriber session in one process (``time.perf_counter`` on both
   sides), each a client of ``mocap-router`` started with the sample configs of ``deploy/`` filled in
   (certificates from ``deploy/make-certs.sh`` in a temporary folder); ``N`` encoded PoseFrames
   (933 bytes) at 30 and 60 Hz. The tracker's own time from capture to publishing is its frame time
   (``docs/BENCHMARKS.md``, tracker speed); this measures publish -> client.
+* **End to end**: the real tracker (``mocap-tracker run``, the synthetic scene of the game's winning
+  round rendered at 30 and 60 Hz, ``--tracker-frames`` frames) a TLS client of the router, a TLS
+  subscriber receiving: capture -> client from each pose's ``capture_wall_ts``.
 * **Fan-out**: ``--clients`` subscriber sessions in ``--procs`` processes, all clients of one TLS
   router, receiving one publisher at 30 Hz; per client the fraction received and the latency
   (wall clock, the same machine), and the publisher's ``put`` time with and without them (what
@@ -45,6 +48,8 @@ from tracker_service.app.replay_daemon import has_subscriber
 ROOT = Path(__file__).resolve().parent.parent
 DEPLOY = ROOT / "deploy"
 KEY = pose_key("cam0")
+#: The tracked motion of the end-to-end rows: the game's winning round (all five gestures).
+SCRIPT = ROOT / "game_client" / "scripts" / "round_win.toml"
 
 
 def pose_frame(seq: int) -> PoseFrame:
@@ -117,6 +122,37 @@ def latencies(pub_conf: zenoh.Config, sub_conf: zenoh.Config, n: int, rate: floa
         undeclare_quietly(sub)
     lat = np.array([(t - sent[decode(p, PoseFrame).seq]) * 1e3 for t, p in list(got)])
     return {"received": len(got), "sent": n, **_pct(lat)}
+
+
+def end_to_end(endpoint: str, pub_config: Path | None, sub_conf: zenoh.Config, rate: float,
+               frames: int) -> dict[str, Any]:
+    """The real tracker (``mocap-tracker run`` in a child process, the synthetic scene rendered at
+    ``rate`` Hz, ``frames`` frames) as a client of the router: capture -> client latency of every
+    pose received, from ``PoseFrame.capture_wall_ts`` (the same machine's wall clock), and the
+    rate the poses arrived at."""
+    tid = f"e2e{rate:.0f}"
+    got: list[tuple[float, float]] = []
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        now = time.time()
+        f = decode(sample.payload.to_bytes(), PoseFrame)
+        got.append((now, (now - f.capture_wall_ts) * 1e3))
+
+    cmd = [sys.executable, "-m", "tracker_service", "run", "--source", f"synthetic:{SCRIPT}", "--fps", str(rate),
+           "--frames", str(frames), "--id", tid, "--mode", "client", "--connect", endpoint,
+           "--wait-for-subscriber", "120", "-q"] + (["--config", str(pub_config)] if pub_config else [])
+    with open_session(sub_conf) as s:
+        sub = s.declare_subscriber(pose_key(tid), on_sample)
+        try:
+            proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+            time.sleep(0.5)
+        finally:
+            undeclare_quietly(sub)
+    if proc.returncode != 0:
+        raise RuntimeError(f"the tracker failed: {proc.stderr[-2000:]}")
+    lat = np.array([ms for _, ms in got])
+    span = got[-1][0] - got[0][0] if len(got) > 1 else float("nan")
+    return {"received": len(got), "sent": frames, "poses_per_s": round((len(got) - 1) / span, 1), **_pct(lat)}
 
 
 def _pct(ms: np.ndarray) -> dict[str, float]:
@@ -202,6 +238,8 @@ def main() -> int:
     ap.add_argument("--clients", type=int, default=100)
     ap.add_argument("--procs", type=int, default=10)
     ap.add_argument("--seconds", type=float, default=10.0, help="fan-out duration (default 10 s)")
+    ap.add_argument("--tracker-frames", type=int, default=300,
+                    help="frames of the real tracker's end-to-end rows (0: skip them)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     t0 = time.time()
@@ -228,6 +266,11 @@ def main() -> int:
                     rows[f"router {link} {rate:.0f} Hz"] = latencies(
                         build_config("publisher", mode="client", connect=[ep], config_file=pc),
                         build_config("subscriber", mode="client", connect=[ep], config_file=sc), args.frames, rate)
+                if link == "tls" and args.tracker_frames > 0:
+                    for rate in (30.0, 60.0):
+                        rows[f"tracker -> router tls -> client {rate:.0f} Hz"] = end_to_end(
+                            ep, pc, build_config("subscriber", mode="client", connect=[ep], config_file=sc), rate,
+                            args.tracker_frames)
                 if link == "tls":
                     rows["fan-out tls 30 Hz"] = fan_out(ep, build_config("publisher", mode="client", connect=[ep],
                                                                          config_file=pc), sc, args.clients,
@@ -244,11 +287,12 @@ def main() -> int:
     if args.json:
         print(json.dumps({"meta": meta, "rows": rows}))
         return 0
-    print("| path | received | p50 ms | p99 ms | max ms |\n|---|---|---|---|---|")
+    print("| path | received | p50 ms | p99 ms | max ms | poses/s |\n|---|---|---|---|---|---|")
     for name, r in rows.items():
         if name.startswith("fan-out"):
             continue
-        print(f"| {name} | {r['received']}/{r['sent']} | {r['p50_ms']} | {r['p99_ms']} | {r['max_ms']} |")
+        print(f"| {name} | {r['received']}/{r['sent']} | {r['p50_ms']} | {r['p99_ms']} | {r['max_ms']} "
+              f"| {r.get('poses_per_s', '')} |")
     f = rows.get("fan-out tls 30 Hz")
     if f:
         print(f"\nfan-out: {f['clients']} TLS clients, {f['frames']} frames at 30 Hz: received min "

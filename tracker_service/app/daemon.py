@@ -201,12 +201,16 @@ class _Run:
         t_run = time.monotonic()  # --duration counts from here
         body_pub.put(self.body_bytes)
         next_status = time.monotonic() + options.status_interval
-        period = 1.0 / options.fps_hint
+        period = 1.0 / options.fps_hint  # until the source's own frame interval is known
+        prev_ts: float | None = None
         due = time.monotonic()
         for ts, frame in source:
             wall = time.time()  # the frame is here: its capture, as far as the tracker can tell
             if stop.is_set():
                 break
+            if prev_ts is not None and 0.0 < ts - prev_ts <= 1.0:
+                period = ts - prev_ts  # a 25 fps video or a 120 fps recording plays at its own rate
+            prev_ts = ts
             res = self.step(ts, frame, pose_pub, body_pub, wall)
             if observe is not None:
                 observe(ts, frame, res)
@@ -290,7 +294,7 @@ def run_from_options(options: RunCommandOptions, stop: threading.Event) -> int:
     if stop.is_set():
         return 0
     source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
-                         seed=options.seed, camera=requested_camera(options.tracker))
+                         seed=options.seed, camera=requested_camera(options.tracker), fps=options.fps)
     try:
         conf = options.zenoh.config()
     except BaseException:

@@ -279,7 +279,8 @@ class TrainAppearanceOptions:
 @dataclass(frozen=True)
 class RunCommandOptions:
     """``mocap-tracker run``: the frame source, the tracker, the Zenoh session and the daemon;
-    ``video``: write the overlay of every frame (silhouette, skeleton, HUD) to this file."""
+    ``video``: write the overlay of every frame (silhouette, skeleton, HUD) to this file; ``fps``:
+    the synthetic camera's frame rate (None: the motion's own)."""
 
     source: str = "synthetic"
     seed: int = 0
@@ -287,6 +288,7 @@ class RunCommandOptions:
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(role="publisher"))
     daemon: RunOptions = field(default_factory=RunOptions)
     video: str | None = None
+    fps: float | None = None
 
 
 @dataclass(frozen=True)

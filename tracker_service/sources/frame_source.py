@@ -242,7 +242,8 @@ class SyntheticSource:
 
 
 def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path | None = None,
-                seed: int = 0, empty_prefix: int = 15, loop: bool = False, camera: Any = None) -> FrameSource:
+                seed: int = 0, empty_prefix: int = 15, loop: bool = False, camera: Any = None,
+                fps: float | None = None) -> FrameSource:
     """Open a frame source.
 
     Parameters
@@ -261,6 +262,8 @@ def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path
     camera : Camera, optional
         The camera filming the synthetic scene (the one the tracker is told about); its frames are
         brought to ``size``. None: the paper's camera at ``size``.
+    fps : float, optional
+        The synthetic scene's frame rate, the motion resampled to it (None: the motion's own).
 
     Raises
     ------
@@ -280,7 +283,7 @@ def open_source(spec: SourceSpec, size: tuple[int, int], *, default_motion: Path
     try:
         scene = SyntheticScene.from_file(str(motion), seed=seed,
                                          config=SceneConfig(width=size[0], height=size[1], empty_prefix=empty_prefix,
-                                                            camera=camera))
+                                                            camera=camera, fps=fps))
     except (OSError, ValueError) as e:
         raise SourceError(f"synthetic source: {e}") from None
     return SyntheticSource(scene, size=size)

@@ -66,3 +66,31 @@ def test_a_daemon_stopped_while_warming_up_opens_no_session(small_db, monkeypatc
     cfg = TrackerConfig(distance="xor", background_frames=4, init_frames=2)
     out = tracker_app.run_tracker(Source(), loaded, cfg, None, tracker_app.RunOptions(), stop)  # type: ignore[arg-type]
     assert out["frames_in"] == 0 and Source.closed
+
+
+def test_a_file_source_is_played_at_its_own_frame_rate(small_db) -> None:  # type: ignore[no-untyped-def]
+    """The daemon paces a file or synthetic source by its frames' time stamps: 24 frames stamped at
+    60 Hz take 23/60 s (0.38 s), not the 0.77 s of the 30 Hz fallback."""
+    import threading
+    import time
+
+    import numpy as np
+
+    from tracker_service.app import daemon as tracker_app
+
+    loaded = load_db(small_db[4], verify=False)
+    cam = loaded.camera
+    blank = np.full((cam.height, cam.width, 3), 120, np.uint8)
+
+    class Pub:
+        matching_status = False  # no viewer: no previews
+
+        def put(self, payload: bytes) -> None:
+            pass
+
+    cfg = TrackerConfig(distance="xor", background_frames=30, init_frames=2)  # learning the room throughout
+    run = tracker_app._Run("pace", loaded, cfg, tracker_app.RunOptions(realtime=True))
+    t0 = time.monotonic()
+    run.track([(k / 60.0, blank) for k in range(24)], Pub(), Pub(), Pub(), threading.Event())  # type: ignore[arg-type]
+    elapsed = time.monotonic() - t0
+    assert 23 / 60 - 0.02 <= elapsed < 0.65

@@ -11,6 +11,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from protocol.net.cli_args import positive_float
 from protocol.net.session import add_zenoh_args
 from tracker_service.app.commands.common import (
     add_tracker_args,
@@ -29,6 +30,14 @@ CLEAN_STOP = True
 log = logging.getLogger(__name__)
 
 
+def _frame_rate(text: str) -> float:
+    """A frame rate in (0, 240] Hz (a higher one would render millions of frames of a motion)."""
+    value = positive_float(text)
+    if value > 240.0:
+        raise argparse.ArgumentTypeError(f"must be at most 240 Hz, got {text!r}")
+    return value
+
+
 def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     """Add ``run`` to the ``mocap-tracker`` subparsers."""
     rp = sub.add_parser(NAME, parents=list(parents), help="the tracker daemon: frames -> poses over Zenoh",
@@ -42,6 +51,9 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     rp.add_argument("--frames", type=int, metavar="N", help="stop after N input frames")
     rp.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     rp.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
+    rp.add_argument("--fps", type=_frame_rate, metavar="HZ",
+                    help="the synthetic camera's frame rate: the motion resampled to it (default: the motion's "
+                         "own, 30 for gesture scripts)")
     rp.add_argument("--as-fast-as-possible", action="store_true",
                     help="do not pace file/synthetic sources at their frame rate")
     rp.add_argument("--wait-for-subscriber", type=float, default=0.0, metavar="S",
@@ -56,7 +68,7 @@ def options_from_args(args: argparse.Namespace) -> RunCommandOptions:
         source=args.source, seed=args.seed, tracker=tracker_options(args, subject=False), zenoh=zenoh_options(args),
         daemon=RunOptions(tracker_id=args.id, max_frames=args.frames, duration=args.duration,
                           realtime=not args.as_fast_as_possible, wait_for_subscriber=wait_for_subscriber(args)),
-        video=args.video)
+        video=args.video, fps=args.fps)
 
 
 def with_camera_db(options: RunCommandOptions) -> RunCommandOptions:

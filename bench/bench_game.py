@@ -19,7 +19,8 @@ Measures
    one stream, looped ``L`` times with a different degradation per loop (rate 30/60/15/120 Hz,
    facing, body scale 0.9-1.1, joint jitter, dropped frames).
 4. **Cost**: microseconds per frame of the recogniser, of one game step, and of
-   ``GameRound.feed`` (recogniser + game) on a 120 Hz stream.
+   ``GameRound.feed`` (recogniser + game) on a 120 Hz stream; milliseconds to draw one frame of
+   the game's view at 480x360 (the live client's) and 960x720.
 
 Not a test: timings depend on the machine and its load.
 """
@@ -46,6 +47,7 @@ from game_client.evaluation import (
 from game_client.features import FeatureExtractor
 from game_client.game import Game, PlayerInput
 from game_client.gestures import GestureRecognizer, recognize
+from game_client.render import Renderer
 from game_client.round import GameRound
 from game_client.variants import Label, Variant, load_labels, variant_motion
 from protocol.formats.mocap_data import index_entries
@@ -189,7 +191,32 @@ def cost(loaded: list[tuple[Any, np.ndarray, np.ndarray]]) -> dict[str, float]:
             rec.update(float(t[k]), jj[k])
     return {"recognizer_us_per_frame_script_120hz": round(rec_us, 1),
             "recognizer_us_per_frame_recordings": round(1e6 * (time.perf_counter() - t0) / real_frames, 1),
-            "game_step_us": round(step_us, 1), "round_feed_us_per_frame_120hz": round(1e6 * min(per_frame), 1)}
+            "game_step_us": round(step_us, 1), "round_feed_us_per_frame_120hz": round(1e6 * min(per_frame), 1),
+            **{f"render_ms_per_frame_{w}x{h}": render_ms((w, h)) for w, h in ((480, 360), (960, 720))}}
+
+
+def render_ms(size: tuple[int, int]) -> float:
+    """Milliseconds to draw one frame of the game's view (arena, ninjas, projectiles, banners, the
+    player's figure and the event list) at ``size``, over the winning round at 30 Hz: what bounds
+    the view's frame rate (1000 / this)."""
+    m = variant_motion("round_win", Variant(fps=30.0))
+    j = fk(m.poses, m.body)
+    rnd = GameRound(height_m=m.body.height)
+    frames = []
+    lines: list[str] = []
+    for k, t in enumerate(m.times):
+        res = rnd.feed(float(t), j[k])
+        lines = (lines + [str(g) for g in res.gestures])[-6:]
+        frames.append((rnd.game.snapshot(), j[k], list(lines)))
+    renderer = Renderer(rnd.game.config, size)
+    renderer.draw(*frames[0][:2])  # first-use costs (fonts, the floor's gradient)
+    best = []
+    for _ in range(2):
+        t0 = time.perf_counter()
+        for snap, joints, ev in frames:
+            renderer.draw(snap, joints, ev)
+        best.append((time.perf_counter() - t0) / len(frames))
+    return round(1e3 * min(best), 2)
 
 
 def main() -> int:

@@ -316,14 +316,16 @@ class ClothClient:
         the checks and the clock, and every accepted one within :data:`MAX_BACKLOG_S` of the newest
         is simulated, in order; only the last is rendered and published (the view runs at what the
         machine allows, the simulation misses no pose). Older ones are skipped (counted as
-        ``skipped_behind``; the driver interpolates across the gap like a dropped frame). True if a
-        frame was simulated."""
+        ``skipped_behind``; the driver interpolates across the gap like a dropped frame). Never more
+        than ``max_frames`` in all. True if a frame was simulated."""
         accepted = [got for data in payloads if (got := self.accept(data, now)) is not None]
         if not accepted or self.driver is None or self.outputs is None:
             return False  # nothing usable, or no body yet
         newest = accepted[-1][0].capture_ts
         keep = [g for g in accepted if newest - g[0].capture_ts <= MAX_BACKLOG_S]
         self.result.skipped_behind += len(accepted) - len(keep)
+        if self.opts.max_frames is not None:  # a batch never runs past --max-frames
+            keep = keep[: max(0, self.opts.max_frames - self.result.frames)]
         stepped = False
         for i, (frame, sim_t) in enumerate(keep):
             if self.driver is None:  # switched off over its budget

@@ -234,3 +234,22 @@ def test_every_pose_of_a_batch_is_simulated_unless_it_is_too_far_behind() -> Non
     assert client.on_poses(batch, now + 1.2)
     kept = int(np.floor(live.MAX_BACKLOG_S * FPS + 1e-9)) + 1
     assert len(d.fed) == fed + 6 + kept and client.result.skipped_behind == 30 - kept
+
+
+def test_a_batch_stops_at_max_frames() -> None:
+    """``--max-frames N`` simulates exactly N poses, even when the last look brought a batch."""
+    made: list[FakeDriver] = []
+
+    def factory(info: BodyInfo, opts: LiveOptions) -> Any:
+        made.append(FakeDriver(info))
+        return made[-1]
+
+    client = ClothClient(LiveOptions(tracker_id="t", max_frames=10), driver_factory=factory)
+    assert client.on_body(encode(INFO))
+    now = _stream(client, 7)
+    frames, fed = client.result.frames, len(made[0].fed)
+    assert frames <= 7
+    assert client.on_poses([encode(_frame(7 + k, (7 + k) / FPS)) for k in range(6)], now + 0.2)
+    assert client.result.frames == 10 and len(made[0].fed) == fed + 10 - frames  # the batch's first 3 only
+    assert not client.on_poses([encode(_frame(13, 13 / FPS))], now + 0.3)  # nothing beyond the limit
+    assert client.result.frames == 10

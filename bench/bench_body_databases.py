@@ -54,20 +54,28 @@ _RSS = ("import re; rss = lambda: int(re.search(r'VmRSS:\\s+(\\d+)', open('/proc
 
 
 def _resident_mb(db: str) -> dict[str, float]:
-    """What a process holds once it has loaded the database whole (MB; tracking maps the arrays and
-    reads what it touches): its resident growth after the load (``rss``), the peak during it
-    (``peak``) and the arrays' size on disk (``files``)."""
+    """What a process holds once it has loaded the database whole (MB): its resident growth after
+    the load (``rss``), the peak during it (``peak``); what the tracker holds, which maps the arrays
+    and builds the distance kernel's rectangles (``tracking_rss``); and the arrays' size on disk
+    (``files``)."""
     code = (_RSS + "import gc, resource, sys; from tracker_service.templates.database import load_db; "
             "gc.collect(); r0 = rss(); p0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024; "
             "d = load_db(sys.argv[1], mmap=False); gc.collect(); "
             "print(rss() - r0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - p0)")
-    r = subprocess.run([sys.executable, "-c", code, str(DB_ROOT / db)], capture_output=True, text=True, cwd=ROOT,
-                       check=False)
+    tracking = (_RSS + "import gc, sys; from tracker_service.templates.database import load_db; "
+                "gc.collect(); r0 = rss(); d = load_db(sys.argv[1]); "
+                "[rs.rectangles() for rs in d.db.level_runs]; gc.collect(); print(rss() - r0)")
+    out: dict[str, float] = {}
+    for key, c in (("whole", code), ("tracking", tracking)):
+        r = subprocess.run([sys.executable, "-c", c, str(DB_ROOT / db)], capture_output=True, text=True, cwd=ROOT,
+                           check=False)
+        ok = r.returncode == 0 and r.stdout.strip()
+        out[key] = r.stdout.strip().splitlines()[-1] if ok else ""
     files = sum(f.stat().st_size for f in (DB_ROOT / db).iterdir() if f.is_file()) / 2**20
-    if r.returncode != 0 or not r.stdout.strip():
-        return {"rss": float("nan"), "peak": float("nan"), "files": round(files, 1)}
-    rss, peak = (float(x) for x in r.stdout.strip().splitlines()[-1].split())
-    return {"rss": round(rss, 1), "peak": round(max(peak, rss), 1), "files": round(files, 1)}
+    nan = float("nan")
+    rss, peak = (float(x) for x in out["whole"].split()) if out["whole"] else (nan, nan)
+    return {"rss": round(rss, 1), "peak": round(max(peak, rss), 1), "files": round(files, 1),
+            "tracking_rss": round(float(out["tracking"]), 1) if out["tracking"] else nan}
 
 
 def _ensure(db: str) -> float:
@@ -120,9 +128,10 @@ def main() -> int:
         lines.append(f"| {who} | {name} | {row['mpjpe_cm']} | {row['within_10cm']} | {', '.join(row['chosen'])} | "
                      f"{row['stature_error_cm']} |")
     memory = {db: _resident_mb(db) for db in ("mMA", *builds)}
-    lines += ["", "| database | files MB | resident MB once loaded (peak while loading) | build s (0: existed) |",
-              "|---|---|---|---|"]
-    lines += [f"| {db} | {mb['files']} | {mb['rss']} ({mb['peak']}) | {builds.get(db, '-')} |"
+    lines += ["", "| database | files MB | resident MB once loaded whole (peak while loading) "
+                  "| resident MB as the tracker holds it (mapped, with the rectangles) | build s (0: existed) |",
+              "|---|---|---|---|---|"]
+    lines += [f"| {db} | {mb['files']} | {mb['rss']} ({mb['peak']}) | {mb['tracking_rss']} | {builds.get(db, '-')} |"
               for db, mb in memory.items()]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

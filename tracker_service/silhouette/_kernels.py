@@ -212,8 +212,11 @@ def run_rectangles_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64]
     :func:`tracker_service.silhouette.distance.run_rectangles` (which checks them)."""
     out = np.empty((data.shape[0], 4), np.int16)
     rptr = np.zeros(ptr.shape[0], np.int64)
-    prev = np.empty(max(data.shape[0], 1), np.int64)  # rectangles open in the previous row
-    cur = np.empty(max(data.shape[0], 1), np.int64)
+    most = 1  # a template's runs: a bound on one row's (the whole database's would take ~200 MB)
+    for t in range(ptr.shape[0] - 1):
+        most = max(most, ptr[t + 1] - ptr[t])
+    prev = np.empty(most, np.int64)  # rectangles open in the previous row
+    cur = np.empty(most, np.int64)
     q = 0
     for t in range(ptr.shape[0] - 1):
         n_prev = 0

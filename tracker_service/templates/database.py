@@ -8,6 +8,7 @@ Loading checks all of it: a missing, truncated, corrupt or stale (older format) 
 
 from __future__ import annotations
 
+import ctypes
 import json
 import tokenize
 import zlib
@@ -19,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from protocol.kinematics import fk
-from protocol.skeleton import Body
+from protocol.skeleton import N_JOINTS, Body
 from tracker_service.camera import Camera
 from tracker_service.cues.appearance import camera_joints
 from tracker_service.cues.skin import leaf_joint_points
@@ -290,17 +291,43 @@ def load_db(path: str | Path, verify: bool = True, mmap: bool = True) -> LoadedD
         level_scale = tuple(float(v) for v in man["level_scale"])
         level_column, ref_column = placement_columns(runs, level_scale, cam)
         level_bottom, level_top, ref_bottom = placement_rows(runs, level_scale, cam)
-        leaf_joints = fk(np.asarray(arrays["leaf_poses"], np.float64), body)  # once, for the skin and appearance cues
+        leaf_points, leaf_joints3d = _leaf_joint_tables(arrays["leaf_poses"], body, cam)
         db = FilterDB(tree=tree, level_runs=runs, level_scale=level_scale,
                       center=(float(man["center"][0]), float(man["center"][1])),
                       **{k: arrays[k] for k in ("leaf_poses", "leaf_visible", "leaf_anc", "leaf_heading", "trans_ptr",
                                                 "trans_idx", "trans_p", "nbr_idx", "nbr_dpart", "sigma_part")},
                       level_column=level_column, ref_column=ref_column,
                       level_bottom=level_bottom, level_top=level_top, ref_bottom=ref_bottom,
-                      leaf_points=leaf_joint_points(leaf_joints, cam),
-                      leaf_joints3d=camera_joints(leaf_joints, cam, body.height))
+                      leaf_points=leaf_points, leaf_joints3d=leaf_joints3d)
     except DatabaseError:
         raise
     except (KeyError, TypeError, ValueError) as e:
         raise DatabaseError(f"inconsistent template database at {p} ({type(e).__name__}: {e}); {hint}") from None
+    _return_freed_memory()
     return LoadedDatabase(db=db, body=body, camera=cam, meta=dict(man.get("meta", {})), path=p)
+
+
+def _leaf_joint_tables(leaf_poses: NDArray[np.floating], body: Body, camera: Camera, chunk: int = 4096
+                       ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The leaves' joints for the skin and appearance cues, derived once at load: image points
+    :func:`~tracker_service.cues.skin.leaf_joint_points` ``(NL, J, 2)`` and camera-axis joints
+    :func:`~tracker_service.cues.appearance.camera_joints` ``(NL, J, 3)``, both float32. The forward
+    kinematics run ``chunk`` leaves at a time: on the whole database at once its float64 rotations
+    alone took ~250 MB at the load's peak."""
+    n = len(leaf_poses)
+    points = np.empty((n, N_JOINTS, 2), np.float32)
+    joints3d = np.empty((n, N_JOINTS, 3), np.float32)
+    for a in range(0, n, chunk):
+        j = fk(np.asarray(leaf_poses[a: a + chunk], np.float64), body)
+        points[a: a + chunk] = leaf_joint_points(j, camera)
+        joints3d[a: a + chunk] = camera_joints(j, camera, body.height)
+    return points, joints3d
+
+
+def _return_freed_memory() -> None:
+    """Give the memory the load's temporaries freed back to the system (glibc's ``malloc_trim``; it
+    otherwise stays in the process: ~30 MB here). A no-op on other C libraries."""
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

@@ -88,3 +88,25 @@ def test_bad_arguments() -> None:
         build_tree(3, [], [])
     with pytest.raises(ValueError):
         cluster_node(np.zeros(0, np.int64), EuclidDistance(np.zeros((1, 2))), 1.0)
+
+
+def test_the_leaf_joint_tables_are_the_same_in_chunks(small_db) -> None:  # type: ignore[no-untyped-def]
+    """The load derives the leaves' image points and camera-axis joints a chunk at a time (a lower
+    memory peak): the same arrays as all at once."""
+    import numpy as np
+
+    from protocol import fk
+    from tracker_service.cues.appearance import camera_joints
+    from tracker_service.cues.skin import leaf_joint_points
+    from tracker_service.templates.database import _leaf_joint_tables, load_db
+
+    loaded = load_db(small_db[4])
+    poses, body, cam = loaded.db.leaf_poses, loaded.body, loaded.camera
+    j = fk(np.asarray(poses, np.float64), body)
+    for chunk in (7, 4096):
+        pts, j3 = _leaf_joint_tables(poses, body, cam, chunk=chunk)
+        np.testing.assert_array_equal(pts, leaf_joint_points(j, cam))
+        np.testing.assert_array_equal(j3, camera_joints(j, cam, body.height))
+    np.testing.assert_array_equal(loaded.db.leaf_points, pts)
+    empty = _leaf_joint_tables(poses[:0], body, cam)
+    assert empty[0].shape == (0, *pts.shape[1:]) and empty[1].shape == (0, *j3.shape[1:])

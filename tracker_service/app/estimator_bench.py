@@ -344,15 +344,8 @@ def _plots(report: dict[str, Any], out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(8, 4))
     for key, r in results.items():
         ax.plot(np.arange(len(r["per_frame_cm"])), r["per_frame_cm"], label=key, lw=1.2)
-    for b in bounds:
-        ax.axvline(b - 0.5, color="0.6", ls="--", lw=0.8)
     ax.set(xlabel="frame", ylabel="mean joint error (cm)", title="Error per frame (cf. ELMO Fig. 5)")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    written.append(out / PLOTS[0])
-    fig.savefig(written[-1], dpi=100)
-    plt.close(fig)
+    written.append(_finish(plt, fig, ax, bounds, out / PLOTS[0]))
 
     names = m["joint_names"][1:]  # the root is the reference: no error
     x = np.arange(len(names))
@@ -384,16 +377,9 @@ def _plots(report: dict[str, Any], out: Path) -> list[Path]:
             for i, row in enumerate(a):
                 ax.plot(f, row, color=color, lw=0.7, alpha=0.7,
                         label=f"{key} ({len(a)} seeds, min–max shaded)" if i == 0 else None)
-        for b in bounds:
-            ax.axvline(b - 0.5, color="0.6", ls="--", lw=0.8)
         ax.set(xlabel="frame", ylabel=f"{m['joint']} bend (degrees)",
                title="Spread over seeds, DRS vs SRS (cf. cardbox paper Fig. 9)")
-        ax.grid(alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        written.append(out / PLOTS[2])
-        fig.savefig(written[-1], dpi=100)
-        plt.close(fig)
+        written.append(_finish(plt, fig, ax, bounds, out / PLOTS[2]))
 
         fig, ax = plt.subplots(figsize=(8, 4))
         for key, color in (("drs", "tab:blue"), ("srs", "tab:red")):
@@ -403,17 +389,22 @@ def _plots(report: dict[str, Any], out: Path) -> list[Path]:
             f = np.arange(c.shape[1])
             ax.fill_between(f, c.min(0), c.max(0), color=color, alpha=0.2)
             ax.plot(f, c.mean(0), color=color, lw=1.2, label=f"{key}, mean of {len(c)} seeds (min–max shaded)")
-        for b in bounds:
-            ax.axvline(b - 0.5, color="0.6", ls="--", lw=0.8)
         ax.set(xlabel="frame", ylabel="silhouette cost of the estimate",
                title="2D cost per frame, DRS vs SRS (cf. cardbox paper Fig. 8)")
-        ax.grid(alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        written.append(out / PLOTS[3])
-        fig.savefig(written[-1], dpi=100)
-        plt.close(fig)
+        written.append(_finish(plt, fig, ax, bounds, out / PLOTS[3]))
     return written
+
+
+def _finish(plt: Any, fig: Any, ax: Any, bounds: Any, path: Path) -> Path:
+    """A per-frame plot finished: the clips' bounds dashed, grid, legend, saved to ``path``, closed."""
+    for b in bounds:
+        ax.axvline(b - 0.5, color="0.6", ls="--", lw=0.8)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def write_outputs(report: dict[str, Any], out: str | Path, plots: bool = True) -> list[Path]:

@@ -221,6 +221,9 @@ def main() -> int:
                          "reacquire_s_max_of_reacquired": max((x for x in re if x is not None), default=None),
                          "ms_total_avg": round(float(np.nanmean([r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
                          "ms_total_max": round(float(np.nanmax([r["ms_per_frame"]["total"]["max"] for r in rs])), 2),
+                         # each take's 99th percentile over its average: stalls in the steady frames
+                         "ms_total_p99_over_avg_worst": round(float(np.nanmax(
+                             [r["ms_per_frame"]["total"]["p99"] / r["ms_per_frame"]["total"]["avg"] for r in rs])), 2),
                          "initialisation_ms_avg": round(float(np.mean([r["initialisation_ms"] for r in rs])), 1),
                          "evals_per_level": np.mean([r["distance_evals_per_level"] for r in rs
                                                      if r["distance_evals_per_level"]], axis=0).round(0).tolist(),

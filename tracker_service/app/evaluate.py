@@ -58,8 +58,9 @@ def subject_measurements(spec: SubjectSpec) -> dict[str, Any]:
 def _stats(v: list[float]) -> dict[str, float]:
     a = np.asarray(v, dtype=np.float64)
     if a.size == 0:
-        return {"min": float("nan"), "avg": float("nan"), "max": float("nan")}
-    return {"min": round(float(a.min()), 3), "avg": round(float(a.mean()), 3), "max": round(float(a.max()), 3)}
+        return {"min": float("nan"), "avg": float("nan"), "p99": float("nan"), "max": float("nan")}
+    return {"min": round(float(a.min()), 3), "avg": round(float(a.mean()), 3),
+            "p99": round(float(np.percentile(a, 99)), 3), "max": round(float(a.max()), 3)}
 
 
 @dataclass

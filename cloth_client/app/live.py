@@ -79,8 +79,11 @@ MAX_SUBSTEPS_PER_FRAME: Final[int] = 256
 #: Wall-clock budget of one simulated frame, seconds.
 STEP_BUDGET_S: Final[float] = 2.0
 #: Poses further behind the newest received than this (stream seconds) are skipped, not simulated:
-#: a client slower than real time catches up instead of falling further behind.
-MAX_BACKLOG_S: Final[float] = 0.5
+#: a client slower than real time catches up instead of falling further behind. 1.5 s outlasts a
+#: new body's garment and avatar build (~0.6 s, three times in the demo's round as the tracker
+#: chooses the body and reads its proportions), which 0.5 s turned into 47 skipped poses of 421 at
+#: 28 frames a second; the solver's 2-2.5x real time catches such a backlog up within a second.
+MAX_BACKLOG_S: Final[float] = 1.5
 #: Consecutive frames over budget after which the cloth is switched off until another body arrives.
 OVER_BUDGET_LIMIT: Final[int] = 3
 

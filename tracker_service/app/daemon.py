@@ -294,7 +294,8 @@ def run_from_options(options: RunCommandOptions, stop: threading.Event) -> int:
     if stop.is_set():
         return 0
     source = open_source(spec, (loaded.camera.width, loaded.camera.height), default_motion=DEFAULT_SCRIPT,
-                         seed=options.seed, camera=requested_camera(options.tracker), fps=options.fps)
+                         seed=options.seed, camera=requested_camera(options.tracker), fps=options.fps,
+                         prerender=options.prerender)
     try:
         conf = options.zenoh.config()
     except BaseException:

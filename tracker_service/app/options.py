@@ -280,7 +280,8 @@ class TrainAppearanceOptions:
 class RunCommandOptions:
     """``mocap-tracker run``: the frame source, the tracker, the Zenoh session and the daemon;
     ``video``: write the overlay of every frame (silhouette, skeleton, HUD) to this file; ``fps``:
-    the synthetic camera's frame rate (None: the motion's own)."""
+    the synthetic camera's frame rate (None: the motion's own); ``prerender``: render the synthetic
+    scene before tracking."""
 
     source: str = "synthetic"
     seed: int = 0
@@ -289,6 +290,7 @@ class RunCommandOptions:
     daemon: RunOptions = field(default_factory=RunOptions)
     video: str | None = None
     fps: float | None = None
+    prerender: bool = False
 
 
 @dataclass(frozen=True)

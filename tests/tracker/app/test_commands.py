@@ -59,6 +59,7 @@ def test_run_arguments_become_run_options() -> None:
     defaults = parse(["run"])
     assert defaults.daemon.realtime and defaults.daemon.tracker_id == "default" and defaults.tracker.db is None
     assert defaults.fps is None and parse(["run", "--fps", "60"]).fps == 60.0
+    assert not defaults.prerender and parse(["run", "--prerender"]).prerender
     for bad in ("0", "-30", "nan", "241", "1e9"):  # a frame rate, not millions of frames of a motion
         with pytest.raises(SystemExit):
             parse(["run", "--fps", bad])

@@ -51,6 +51,22 @@ def test_same_seed_same_frames_in_any_order(scene: SyntheticScene, kick: Motion)
         assert other.subject.spec != scene.subject.spec
 
 
+def test_a_prerendered_source_gives_the_same_frames(kick: Motion) -> None:
+    """``run --prerender``: every frame rendered when the source is made, the same as rendered on
+    demand, with each frame's truth kept for ``last_truth``."""
+    from tracker_service.sources.frame_source import SyntheticSource
+
+    short = Motion(poses=kick.poses[:6], fps=kick.fps, name="kick", body=kick.body)
+    with SyntheticScene(short, seed=3, config=SceneConfig(empty_prefix=2)) as a, \
+            SyntheticScene(short, seed=3, config=SceneConfig(empty_prefix=2)) as b:
+        live, pre = SyntheticSource(a), SyntheticSource(b, prerender=True)
+        assert pre._frames is not None and len(pre._frames) == b.n_frames == 8
+        for (t0, im0), (t1, im1) in zip(live, pre, strict=True):
+            assert t0 == t1 and np.array_equal(im0, im1)
+            np.testing.assert_array_equal(live.last_truth.joints_2d, pre.last_truth.joints_2d)
+        assert pre.counters["frames"] == 8
+
+
 def test_frames_and_ground_truth_are_consistent(scene: SyntheticScene) -> None:
     assert scene.n_frames == len(scene) == 2 + len(scene.poses)
     for i in range(2, scene.n_frames, 4):

@@ -257,7 +257,8 @@ def _system_commands(o: SystemDemoOptions, db: Path, endpoint: str, out: Path) -
     py = sys.executable
     zenoh_args = ["--connect", endpoint, "--listen", "tcp/127.0.0.1:0"]
     tracker = [py, "-m", "tracker_service", "run", "--source", f"synthetic:{o.script}", "--db", str(db),
-               "--id", _TID, "--seed", str(o.seed), "--max-heading", "35", "--wait-for-subscriber", "10", *zenoh_args]
+               "--id", _TID, "--seed", str(o.seed), "--max-heading", "35", "--wait-for-subscriber", "10",
+               "--prerender", *zenoh_args]  # the camera's frames cost the tracker nothing, as a real camera's
     game = [py, "-m", "game_client", "run", "-v", "--tracker", _TID, "--id", _TID, "--json",
             "--log", str(out / "game.jsonl"), *zenoh_args]
     cloth = [py, "-m", "cloth_client", "run", "--id", _TID, "--garment", "cape", "--json", "--log-level", "INFO",

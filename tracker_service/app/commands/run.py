@@ -54,6 +54,9 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
     rp.add_argument("--fps", type=_frame_rate, metavar="HZ",
                     help="the synthetic camera's frame rate: the motion resampled to it (default: the motion's "
                          "own, 30 for gesture scripts)")
+    rp.add_argument("--prerender", action="store_true",
+                    help="render the whole synthetic scene before tracking, as a camera's frames cost the tracker "
+                         "nothing (0.23 MB a frame at 320x240)")
     rp.add_argument("--as-fast-as-possible", action="store_true",
                     help="do not pace file/synthetic sources at their frame rate")
     rp.add_argument("--wait-for-subscriber", type=float, default=0.0, metavar="S",
@@ -68,7 +71,7 @@ def options_from_args(args: argparse.Namespace) -> RunCommandOptions:
         source=args.source, seed=args.seed, tracker=tracker_options(args, subject=False), zenoh=zenoh_options(args),
         daemon=RunOptions(tracker_id=args.id, max_frames=args.frames, duration=args.duration,
                           realtime=not args.as_fast_as_possible, wait_for_subscriber=wait_for_subscriber(args)),
-        video=args.video, fps=args.fps)
+        video=args.video, fps=args.fps, prerender=args.prerender)
 
 
 def with_camera_db(options: RunCommandOptions) -> RunCommandOptions:

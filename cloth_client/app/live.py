@@ -231,6 +231,7 @@ class ClothClient:
         self.last_ts = 0.0
         self.over_budget = 0
         self.want_body = True  # ask the tracker's queryable for its BodyInfo (at start, after a new stream)
+        self.waiting: list[tuple[PoseFrame, float]] = []  # accepted before there was a cape to move
 
     def _count(self, key: str, n: int = 1) -> None:
         self.result.counters[key] = self.result.counters.get(key, 0) + n
@@ -277,7 +278,8 @@ class ClothClient:
             self.outputs.close()
             self.outputs = None
         self.info, self.driver, self.over_budget = info, driver, 0
-        self.sim_t = None
+        self.sim_t = None  # a new cape starts its own clock; poses that waited for it are timed on it
+        self.waiting = [(frame, self._advance(float(frame.capture_ts), False)) for frame, _ in self.waiting]
         self.outputs = _Outputs(self.opts, driver, self.publisher)
         self.result.body_updates += 1
         log.info("body %r received: %d-particle %s", info.body_model, driver.garment.n_particles, self.opts.garment)
@@ -305,28 +307,38 @@ class ClothClient:
             self._count("tracker_restarts")
             self.want_body = True  # the new stream may track another body: ask for it
             log.warning("new tracker stream (seq %d, t=%.3f s): the cloth follows it", frame.seq, ts)
+        return frame, self._advance(ts, verdict.new_stream)
+
+    def _advance(self, ts: float, new_stream: bool) -> float:
+        """The solver's clock at a pose stamped ``ts`` (stream seconds): it follows the stream, and
+        a new stream or a gap longer than the driver's continuity allows is a jump past that gap."""
         if self.sim_t is None:
             self.sim_t = 0.0
         else:
             dt = ts - self.last_ts
             gap = self.driver.config.continuity.max_gap_s if self.driver is not None else 0.5
-            self.sim_t += 1.01 * gap + 1e-3 if verdict.new_stream or dt > gap else max(dt, 0.0)
+            self.sim_t += 1.01 * gap + 1e-3 if new_stream or dt > gap else max(dt, 0.0)
         self.last_ts = ts
-        return frame, self.sim_t
+        return self.sim_t
 
     def on_poses(self, payloads: list[bytes], now: float | None = None) -> bool:
         """Handle the pose payloads received since the last call (oldest first): each goes through
         the checks and the clock, and every accepted one within :data:`MAX_BACKLOG_S` of the newest
         is simulated, in order; only the last is rendered and published (the view runs at what the
         machine allows, the simulation misses no pose). Older ones are skipped (counted as
-        ``skipped_behind``; the driver interpolates across the gap like a dropped frame). Never more
-        than ``max_frames`` in all. True if a frame was simulated."""
-        accepted = [got for data in payloads if (got := self.accept(data, now)) is not None]
-        if not accepted or self.driver is None or self.outputs is None:
-            return False  # nothing usable, or no body yet
+        ``skipped_behind``; the driver interpolates across the gap like a dropped frame). Poses that
+        come before the body are kept (within the same window) for its first look. Never more than
+        ``max_frames`` in all. True if a frame was simulated."""
+        accepted = self.waiting + [got for data in payloads if (got := self.accept(data, now)) is not None]
+        if not accepted:
+            return False  # nothing usable
         newest = accepted[-1][0].capture_ts
         keep = [g for g in accepted if newest - g[0].capture_ts <= MAX_BACKLOG_S]
         self.result.skipped_behind += len(accepted) - len(keep)
+        if self.driver is None or self.outputs is None:  # no body yet: kept for when it comes
+            self.waiting = keep
+            return False
+        self.waiting = []
         if self.opts.max_frames is not None:  # a batch never runs past --max-frames
             keep = keep[: max(0, self.opts.max_frames - self.result.frames)]
         stepped = False

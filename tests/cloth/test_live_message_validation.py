@@ -255,3 +255,22 @@ def test_a_batch_stops_at_max_frames() -> None:
     assert client.result.frames == 10 and len(made[0].fed) == fed + 10 - frames  # the batch's first 3 only
     assert not client.on_poses([encode(_frame(13, 13 / FPS))], now + 0.3)  # nothing beyond the limit
     assert client.result.frames == 10
+
+
+def test_poses_before_the_body_are_simulated_when_it_comes() -> None:
+    """The first poses often beat the ``BodyInfo`` reply: they wait (within ``MAX_BACKLOG_S``) and are
+    simulated, in order, with the first poses after it."""
+    client, made = _client()
+    assert not client.on_poses([encode(_frame(k, k / FPS)) for k in range(3)], 0.1)
+    assert not made and len(client.waiting) == 3
+    assert client.on_body(encode(INFO))
+    assert client.on_poses([encode(_frame(3, 3 / FPS))], 0.2)
+    d, = made
+    assert len(d.fed) == 4 and client.result.frames == 4 and not client.waiting
+    assert (np.diff(_solver_times(d)) > 0).all()
+    # a long wait keeps only the last MAX_BACKLOG_S of them
+    late, _ = _client()
+    n = int(3 * live.MAX_BACKLOG_S * FPS)
+    for k in range(n):
+        late.on_poses([encode(_frame(k, k / FPS))], k / FPS)
+    assert len(late.waiting) <= int(live.MAX_BACKLOG_S * FPS) + 1 and late.result.skipped_behind > 0

@@ -13,10 +13,11 @@ resident memory (``VmRSS``) is printed after each session. ``--set`` inserts con
 the router's config (e.g. ``transport/link/rx/buffer_size=16384``).
 
 Measured 2026-12-06, eclipse-zenoh 1.10.2, the 2-core VM: **+19.4 MB per session** whenever a
-session sends 2 or more messages larger than one 64 KB batch (100 or 280 kB alike, 2 or 100 of
-them), with or without a subscriber; unchanged by ``transport/link/rx/buffer_size`` (16 KiB or 64 KiB),
-``transport/link/rx/max_message_size`` (100 kB, so the messages are dropped), one-batch transmit
-queues, 100 ms between messages and ``MALLOC_ARENA_MAX=2``. One message per session, or the same
+client sends two or more messages larger than one 64 KB batch in one session (100 or 280 kB
+alike, two or a hundred of them), with or without a subscriber; unchanged by
+``transport/link/rx/buffer_size`` (16 KiB or 64 KiB), ``transport/link/rx/max_message_size``
+(100 kB, so the messages are dropped), one-batch transmit queues, 100 ms between messages and
+``MALLOC_ARENA_MAX=2``. One message per session, or the same
 messages from one long-lived session, grow nothing. A router that requires user/password
 authentication (``--set 'transport/auth/usrpwd/dictionary_file="FILE"'``, as ``deploy/``'s configs)
 refuses those sessions and stays flat (+0.5 MB after 4).

@@ -11,9 +11,10 @@ nearest mode of the silhouette likelihood. Per frame:
 2. hypotheses (ELMO §3.2, "initializations from both the centers of the modes at the previous time
    step as well as pose estimates provided by a global search"): the tree's MAP leaf and its
    posterior mean, in the world at the tree's placement, and the previous frame's modes;
-3. each refined by the pattern search of the rendered body's silhouette likelihood;
-4. merged into modes (eq. 3) and reweighted by the wide temporal prior of the previous modes (§3.3,
-   eq. 6); the heaviest is the estimate (``pose_map`` and ``pose_mean``).
+3. each refined by the pattern search of the rendered body's silhouette likelihood, merged into
+   modes (eq. 3) and reweighted by the wide temporal prior of the previous modes (§3.3, eq. 6):
+   ELMO's own steps (:func:`~tracker_service.estimators.elmo.filter.local_modes`); the heaviest
+   mode is the estimate (``pose_map`` and ``pose_mean``).
 
 The tree's posterior (its leaves, weights, occlusion, support) stays the tree's: the publishing
 stages that read it (the shoe cue's legs, depth from the feet line) see the same leaf and support
@@ -27,12 +28,12 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
 from protocol.skeleton import Body
 from tracker_service.camera import Camera
 from tracker_service.estimators.base import Estimate, Observation
-from tracker_service.estimators.elmo.modes import Modes, merge_modes, reweight
-from tracker_service.estimators.elmo.refine import DEFAULT_SEARCH, coordinates, pattern_search
+from tracker_service.estimators.elmo.filter import local_modes
+from tracker_service.estimators.elmo.modes import Modes
+from tracker_service.estimators.elmo.refine import DEFAULT_SEARCH, coordinates
 from tracker_service.estimators.likelihood import PoseLikelihood, placement_of_root
 from tracker_service.estimators.particles import world_pose
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, FilterState, initial_state, step
@@ -134,17 +135,13 @@ class TreeElmo:
             if prm.root_step_m <= 0:  # the root is the tree's: the previous modes carry their joints only
                 carried[:, :3] = starts[0, :3]
             starts = np.concatenate([starts, carried])
-        found = pattern_search(starts, self.likelihood, observation.features, self.coords, self.steps,
-                               prm.iterations)
-        modes = merge_modes(found.poses, fk(found.poses, self.body), found.variance, found.neg_log,
-                            found.distance, prm.merge_m)
-        post = reweight(modes, previous, prm.sigma_eta_m)
-        post = post.take(np.argsort(-post.weights, kind="stable")[: prm.max_modes])
+        post, n = local_modes(starts, previous, self.likelihood, observation.features, self.coords, self.steps,
+                              self.body, prm.iterations, prm.merge_m, prm.sigma_eta_m, prm.max_modes)
         best = int(np.argmax(post.weights))
         pose = post.poses[best].copy()
         ref = est.pose_map[:3]  # the template's own root: the placement keeps the tree's meaning
         placement = placement_of_root(pose[:3], ref, self.camera)
         pose[:3] = ref
         out = replace(est, pose_map=pose, pose_mean=pose.copy(), placement=placement,
-                      evaluations=(*est.evaluations, found.evaluations))
+                      evaluations=(*est.evaluations, n))
         return _with_modes(tstate, post), out

@@ -51,9 +51,22 @@ from tracker_service.estimators.likelihood import PoseLikelihood
 from tracker_service.estimators.particles import make_estimate, reference_pose
 from tracker_service.estimators.tree_filter.filter import mean_pose
 from tracker_service.estimators.tree_filter.model import FilterDB
+from tracker_service.silhouette.features import LevelFeatures
 from tracker_service.silhouette.placement import placement_to_root
 
-__all__ = ["Elmo", "ElmoParams", "ElmoState"]
+__all__ = ["Elmo", "ElmoParams", "ElmoState", "local_modes"]
+
+
+def local_modes(starts: NDArray[np.float64], previous: Modes | None, likelihood: PoseLikelihood,
+                features: list[LevelFeatures], coords: NDArray[np.int64], steps: NDArray[np.float64], body: Body,
+                iterations: int, merge_m: float, sigma_eta_m: float, max_modes: int) -> tuple[Modes, int]:
+    """§3.2-3.3 from hypotheses to the posterior's modes: each of ``starts (H, P)`` refined by the
+    pattern search, merged into modes (eq. 3), reweighted by the wide temporal prior of ``previous``
+    (eq. 6), the ``max_modes`` heaviest kept; with the likelihood evaluations spent."""
+    found = pattern_search(starts, likelihood, features, coords, steps, iterations)
+    modes = merge_modes(found.poses, fk(found.poses, body), found.variance, found.neg_log, found.distance, merge_m)
+    post = reweight(modes, previous, sigma_eta_m)
+    return post.take(np.argsort(-post.weights, kind="stable")[:max_modes]), found.evaluations
 
 
 @dataclass(frozen=True)
@@ -188,14 +201,9 @@ class Elmo:
         starts = hyps if previous is None else np.concatenate([hyps, previous.poses])
         if len(starts) == 0:  # no silhouette and no past: the standing pose
             starts = reference_pose(self.body, self.camera, place)[None]
-        found = pattern_search(starts, self.likelihood, observation.features, self.coords, self.steps,
-                               prm.iterations)
-        evals += found.evaluations
-        modes = merge_modes(found.poses, fk(found.poses, self.body), found.variance, found.neg_log,
-                            found.distance, prm.merge_m)
-        post = reweight(modes, previous, prm.sigma_eta_m)
-        keep = np.argsort(-post.weights, kind="stable")[: prm.max_modes]
-        post = post.take(keep)
+        post, n = local_modes(starts, previous, self.likelihood, observation.features, self.coords, self.steps,
+                              self.body, prm.iterations, prm.merge_m, prm.sigma_eta_m, prm.max_modes)
+        evals += n
         best = int(np.argmax(post.weights))
         est = make_estimate(post.poses[best], mean_pose(post.poses, post.weights), float(post.distance[best]),
                             prm.confidence_scale, (evals,), self.camera)

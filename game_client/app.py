@@ -76,6 +76,7 @@ class AppOptions:
     tracker_id: str = DEFAULT_TRACKER_ID
     log_path: Path | None = None
     frames_out: Path | None = None
+    frames_fps: float = 10.0  # rendered frames per second of game time with frames_out
     max_frames: int | None = None
     duration: float | None = None
     exit_when_over: bool = False
@@ -341,7 +342,7 @@ def run_game(conf: zenoh.Config, options: AppOptions, stop: threading.Event,
     gconf = game_config or GameConfig()
     result = AppResult(counters=dict.fromkeys(_COUNTERS, 0))
     fh = options.log_path.open("w", encoding="utf-8", buffering=1) if options.log_path else None
-    sink = FrameSink(options.frames_out, gconf) if options.frames_out else None
+    sink = FrameSink(options.frames_out, gconf, options.frames_fps) if options.frames_out else None
     t_start = time.monotonic()
     with open_session(conf) as session:
         entities: list[Any] = []

@@ -123,6 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "the next one when it stops (trackers announce themselves with a liveliness token)")
     up.add_argument("--log", type=Path, metavar="PATH", help="write the JSON-lines game log here")
     up.add_argument("--frames-out", type=Path, metavar="DIR", help="write rendered frames (PNG, GIF, MP4) into DIR")
+    up.add_argument("--fps", type=_positive_float, default=10.0, metavar="HZ",
+                    help="with --frames-out: rendered frames per second of game time (default: 10)")
     up.add_argument("--max-frames", type=_positive_int, metavar="N", help="stop after N pose frames")
     up.add_argument("--duration", type=_positive_float, metavar="S", help="stop after S seconds (wall clock)")
     up.add_argument("--exit-when-over", action="store_true", help="stop when the first round ends")
@@ -217,8 +219,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .app import AppOptions, run_game
 
     options = AppOptions(game_id=args.id, tracker_id=args.tracker, log_path=args.log, frames_out=args.frames_out,
-                         max_frames=args.max_frames, duration=args.duration, exit_when_over=args.exit_when_over,
-                         follow=args.follow)
+                         frames_fps=args.fps, max_frames=args.max_frames, duration=args.duration,
+                         exit_when_over=args.exit_when_over, follow=args.follow)
     conf = config_from_args(args, role="subscriber")
     with stop_on_signals(threading.Event()) as stop:
         result = run_game(conf, options, stop)

@@ -257,6 +257,11 @@ class FrameWriter:
 
     Writes ``frame_00000.png``... (every ``png_every``-th saved frame), ``round.gif`` (at most
     ``gif_max_frames`` frames, evenly thinned, scaled by ``gif_scale``) and ``round.mp4``.
+
+    The GIF's frames are thinned as they come: when ``gif_max_frames`` are held, every second one
+    is dropped and from then on only every ``gif_step``-th frame is kept, so a live session of any
+    length holds at most ``gif_max_frames`` images (a 10-minute session at 10 frames a second
+    held 3 GB before).
     """
 
     out_dir: Path
@@ -266,6 +271,7 @@ class FrameWriter:
     gif_max_frames: int = 400
     mp4: bool = True
     frames: list[NDArray[np.uint8]] = field(default_factory=list)
+    gif_step: int = 1
     _next_t: float = 0.0
     _video: VideoWriter | None = None
     _count: int = 0
@@ -290,7 +296,11 @@ class FrameWriter:
             if self._video is None:
                 self._video = VideoWriter(self.out_dir / "round.mp4", self.fps)
             self._video.write(img)
-        self.frames.append(img)
+        if self._count % self.gif_step == 0:
+            self.frames.append(img)
+            if len(self.frames) >= max(self.gif_max_frames, 2):
+                self.frames = self.frames[::2]
+                self.gif_step *= 2
         self._count += 1
 
     def close(self) -> list[Path]:
@@ -301,14 +311,13 @@ class FrameWriter:
             self._video = None
             out.append(self.out_dir / "round.mp4")
         if self.frames:
-            step = max(1, int(np.ceil(len(self.frames) / self.gif_max_frames)))
-            frames = self.frames[::step]
+            frames = self.frames
             if self.gif_scale != 1.0:
                 frames = [np.asarray(cv2.resize(f, None, fx=self.gif_scale, fy=self.gif_scale,
                                                 interpolation=cv2.INTER_AREA), dtype=np.uint8) for f in frames]
             rgb = [cv2.cvtColor(f, cv2.COLOR_BGR2RGB) for f in frames]
             path = self.out_dir / "round.gif"
-            iio.imwrite(path, np.stack(rgb), duration=round(1000 * step / self.fps), loop=0)
+            iio.imwrite(path, np.stack(rgb), duration=round(1000 * self.gif_step / self.fps), loop=0)
             out.append(path)
             log.info("wrote %d frames to %s", len(frames), path)
         return out

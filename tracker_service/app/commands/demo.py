@@ -267,8 +267,8 @@ def _system_commands(o: SystemDemoOptions, db: Path, endpoint: str, out: Path) -
         tracker += ["--duration", str(o.system_duration)]
     if o.video:
         tracker += ["--video", str(out / "tracker_overlay.mp4")]
-        game += ["--frames-out", str(out / "game")]
-        cloth += ["--frames-out", str(out / "cloth"), "--video-fps", "15", "--size", "360x360"]
+        game += ["--frames-out", str(out / "game"), "--fps", "30"]
+        cloth += ["--frames-out", str(out / "cloth"), "--video-fps", "30", "--size", "360x360"]
     cmds = {"tracker": tracker, "game": game, "cloth": cloth}
     if o.view_port is not None:
         cmds["view"] = [py, "-m", "tracker_service.app.view", "--port", str(o.view_port), *zenoh_args]

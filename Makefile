@@ -15,8 +15,12 @@ TEST_APT_PACKAGES := chromium chromium-driver
 # bundles the pose models needs numpy<2, opencv-python-headless<4.12 and protobuf<5.
 PEERS := .venv-peers
 PEERS_STAMP := $(PEERS)/.installed
+# NVIDIA Warp, whose CPU cloth benchmark the cloth bench runs beside its own free sheet (its wheel
+# carries its own compiler; kept out of the product's environment).
+WARP := .venv-warp
+WARP_STAMP := $(WARP)/.installed
 
-.PHONY: demo test lint bench bench-peers clean-venv apt
+.PHONY: demo test lint bench bench-peers bench-warp clean-venv apt
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -60,5 +64,14 @@ $(PEERS_STAMP):
 bench-peers: $(TEST_STAMP) $(PEERS_STAMP) apt
 	$(BIN)/python bench/bench_peers.py $(PEERS_ARGS)
 
+$(WARP_STAMP):
+	@test -x $(WARP)/bin/python || $(PY) -m venv $(WARP)
+	$(WARP)/bin/python -m pip install -q "warp-lang==1.19.0" numpy
+	@touch $(WARP_STAMP)
+
+# the cloth solver's speed beside Warp's, one core (about 3 minutes)
+bench-warp: $(STAMP) $(WARP_STAMP) apt
+	taskset -c 0 $(BIN)/python bench/bench_cloth.py --skip-sweep --jobs 1 --warp-python $(WARP)/bin/python $(WARP_ARGS)
+
 clean-venv:
-	rm -rf $(VENV) $(PEERS)
+	rm -rf $(VENV) $(PEERS) $(WARP)

@@ -13,6 +13,9 @@ Speed figures
 * ``springs+integrate``: substeps/s of the mass-spring model alone (structural, shear and bending
   springs with damping, gravity, semi-implicit Euler) on a free square sheet of 48 x 48 = 2,304 and
   64 x 64 = 4,096 particles, no collision - the model NVIDIA Warp's CPU cloth benchmark times;
+* ``warp_cpu``: that benchmark itself, run in the same bench between our two sheets' figures
+  (``bench/peers/warp_cloth.py`` in ``--warp-python``'s environment, by default ``.venv-warp``,
+  which ``make bench-warp`` creates; without it the column is empty, never a remembered figure);
 * ``full, no collision``: the same sheets with everything our substep does except body collision
   (air drag, long-range attachments, line and Gauss-Seidel strain limiting);
 * real-time factor (simulated s per wall s) of a cape and a skirt of about 2,000 and 5,000 particles
@@ -26,6 +29,7 @@ import dataclasses
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from multiprocessing import get_context
@@ -49,7 +53,7 @@ from protocol.formats.mocap_data import index_entries, mocap_root  # noqa: E402
 
 #: Recording used for the real-time factor (a 63 s dance with spins and crouches).
 RT_RECORDING = "bandai/dataset-1_dance-short_normal_001.bvh"
-WARP_CPU = {2304: 3500, 4096: 1500}  # NVIDIA Warp CPU cloth benchmark, substeps/s on this machine
+WARP_PYTHON = ROOT / ".venv-warp" / "bin" / "python"
 
 
 def _substeps_per_s(side: int, params: ClothParams, seconds: float = 3.0) -> float:
@@ -67,15 +71,38 @@ def _substeps_per_s(side: int, params: ClothParams, seconds: float = 3.0) -> flo
     return done / (time.perf_counter() - t0)
 
 
-def speed(rt_particles: tuple[int, ...] = (2000, 5000), overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Substeps/s on free sheets and real-time factors with collision (garments of ``rt_particles``)."""
+def warp_sheets(python: Path, sides: tuple[int, ...]) -> dict[int, int]:
+    """NVIDIA Warp's CPU cloth benchmark (``bench/peers/warp_cloth.py``) run by ``python``: substeps/s
+    per sheet side; empty when that environment is missing or the run fails (said on stdout)."""
+    if not python.exists():
+        print(f"  warp: {python} not found (make bench-warp creates it); no Warp figures", flush=True)
+        return {}
+    cmd = [str(python), str(ROOT / "bench" / "peers" / "warp_cloth.py"), "--sides", ",".join(map(str, sides))]
+    run = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=600)
+    try:
+        sheets = json.loads(run.stdout.strip().splitlines()[-1])["sheets"]
+        return {int(r["side"]): int(r["substeps_per_s"]) for r in sheets}
+    except (ValueError, KeyError, IndexError):
+        print(f"  warp: the peer failed (exit {run.returncode}): {run.stderr.strip()[-300:]}", flush=True)
+        return {}
+
+
+def speed(rt_particles: tuple[int, ...] = (2000, 5000), overrides: dict[str, Any] | None = None,
+          warp_python: Path | None = WARP_PYTHON) -> dict[str, Any]:
+    """Substeps/s on free sheets beside Warp's (``warp_python``: its environment; None: not run) and
+    real-time factors with collision (garments of ``rt_particles``)."""
     bare = ClothParams(limit_iterations=0, final_sweeps=0, final_rounds=0, air_density=0.0, floor=None, tethers=False)
     full = ClothParams(floor=None)
     out: dict[str, Any] = {"free_sheet": []}
-    for side in (48, 64):
-        row = {"particles": side * side, "springs+integrate": round(_substeps_per_s(side, bare)),
-               "full, no collision": round(_substeps_per_s(side, full)),
-               "warp_cpu": WARP_CPU[side * side]}
+    sides = (48, 64)
+    rows: list[dict[str, Any]] = [{"particles": side * side, "springs+integrate": round(_substeps_per_s(side, bare)),
+             "full, no collision": round(_substeps_per_s(side, full))} for side in sides]
+    warp = warp_sheets(warp_python, sides) if warp_python is not None else {}
+    for side, row in zip(sides, rows, strict=True):
+        row["warp_cpu"] = warp.get(side)
+        if row["warp_cpu"]:
+            row["full / warp"] = round(row["full, no collision"] / row["warp_cpu"], 2)
+            row["springs+integrate / warp"] = round(row["springs+integrate"] / row["warp_cpu"], 2)
         out["free_sheet"].append(row)
         print(f"  sheet {side}x{side}: {row}", flush=True)
     motion = load_motion(mocap_root() / RT_RECORDING, fps=60.0)  # 60 Hz input, as in the target
@@ -197,6 +224,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-sweep", action="store_true")
     ap.add_argument("--rt-particles", default="2000,5000", help="garment sizes for the real-time factor")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_cloth" / "results.json"))
+    ap.add_argument("--warp-python", type=Path, default=WARP_PYTHON, metavar="PATH",
+                    help="Python of the environment holding warp-lang, for Warp's CPU cloth benchmark beside the "
+                         "free sheet (default: .venv-warp/bin/python, made by make bench-warp)")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                     help="override a ClothParams field (or cfg.FIELD a DriverConfig field) in the real-time "
                          "runs and the sweep (repeatable), e.g. extra_rounds=12 or cfg.slide_fraction=0")
@@ -208,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
                            "params": overrides}
     if not args.skip_speed:
         print("speed:", flush=True)
-        res["speed"] = speed(tuple(int(n) for n in args.rt_particles.split(",")), overrides)
+        res["speed"] = speed(tuple(int(n) for n in args.rt_particles.split(",")), overrides, args.warp_python)
     if not args.skip_sweep:
         print("sweep:", flush=True)
         res["sweep"] = sweep(args.garments.split(","), args.particles, args.jobs, args.limit, overrides)

@@ -100,6 +100,10 @@ class Observation:
         The other cues' costs over leaves (shoes, appearance), in the order they are summed.
     proposals : (n,) int64 or None
         Leaves proposed by a cue (the appearance network's nearest leaves).
+    min_scale : float or None
+        With the feet cut off by the bottom border (no ``placement``): the least scale the person
+        can be at (:func:`tracker_service.silhouette.placement.nearest_scale`, scaled for the body
+        size); None otherwise.
     """
 
     features: list[LevelFeatures]
@@ -108,6 +112,7 @@ class Observation:
     skin: SkinObservation | None = None
     leaf_costs: tuple[LeafCost, ...] = ()
     proposals: NDArray[np.int64] | None = None
+    min_scale: float | None = None
 
 
 @dataclass(frozen=True)

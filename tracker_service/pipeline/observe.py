@@ -26,7 +26,12 @@ from tracker_service.pipeline.config import TrackerConfig
 from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.placement import feet_in_view, observed_placement, scaled_placement, silhouette_rows
 
-__all__ = ["FrameEvidence", "observe"]
+__all__ = ["FEET_CUT_TOLERANCE", "FrameEvidence", "nearest_scale", "observe"]
+
+#: With the feet cut off by the image's bottom border, the person is taken to be no more than this
+#: fraction farther than when the feet were last in view: the feet line reads the nearest foot, up to
+#: ~0.3 m ahead of the body at 3 m (4 % pulled walks with a foot forward too near; docs/TRACKER.md).
+FEET_CUT_TOLERANCE = 0.10
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,35 @@ class FrameEvidence:
     appearance_ms: float
 
 
+def nearest_scale(mask: NDArray[np.bool_], feet_scale: float | None, body_scale: float) -> float | None:
+    """The least scale the person can be at while the image's bottom border cuts off their feet.
+
+    The feet line then no longer measures depth, but it still bounds it on one side: had the person
+    stepped back, their feet would be in view again, so they are at least about as near as when the
+    feet were last seen. Without the bound the depth followed the motion model and the silhouette
+    alone, and a person standing 2.9 m away with their feet on the border drifted to 3.6 m in a
+    few frames (a held-out take).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+        The silhouette (non-empty).
+    feet_scale : float or None
+        The feet line's scale (templates' own size) when the feet were last in view.
+    body_scale : float
+        The subject's size over the templates'.
+
+    Returns
+    -------
+    float or None
+        ``body_scale * feet_scale * (1 - FEET_CUT_TOLERANCE)`` when the feet are cut off and were
+        seen before; None otherwise.
+    """
+    if feet_scale is None or feet_in_view(mask):
+        return None
+    return float(body_scale) * float(feet_scale) * (1.0 - FEET_CUT_TOLERANCE)
+
+
 def _heading_window(fstate: object, db: FilterDB, params: FilterParams) -> HeadingWindow:
     """Where the appearance cue may propose: headings within ``params.max_turn`` of the filter's
     current one (its support's circular mean; facing the camera when it has none) and within
@@ -70,7 +104,8 @@ def _heading_window(fstate: object, db: FilterDB, params: FilterParams) -> Headi
 
 
 def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, db: FilterDB, camera: Camera,
-            config: TrackerConfig, body_scale: float, shoes: ShoeModel | None, tracking: bool) -> FrameEvidence:
+            config: TrackerConfig, body_scale: float, shoes: ShoeModel | None, tracking: bool,
+            feet_scale: float | None = None) -> FrameEvidence:
     """Build the frame's observation.
 
     Parameters
@@ -91,6 +126,10 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, d
         The shoe colour learned while initialising.
     tracking : bool
         The tracker is in its tracking phase (shoes are looked for only then).
+    feet_scale : float, optional
+        The feet line's scale (templates' own size) when the feet were last in view
+        (``TrackerState.feet_scale``): with the feet now cut off by the bottom border, the
+        observation's ``min_scale`` is that scale less :data:`FEET_CUT_TOLERANCE`.
 
     Returns
     -------
@@ -102,6 +141,7 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, d
     raw = observed_placement(mask, camera)  # for the templates' own body size
     # a subject k times the templates' size looks k times larger at that depth, feet on the same row
     obs = None if raw is None else scaled_placement(raw, body_scale, camera)
+    min_scale = None if raw is not None else nearest_scale(mask, feet_scale, body_scale)
     skin = observe_skin(frame, mask, config.skin) if config.skin is not None else None
     costs: list[LeafCost] = []
     shoe_px = None
@@ -135,5 +175,5 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, d
                 proposals = propose_leaves_in_window(mu, scored, db.leaf_joints3d, config.filter.appearance_proposals,
                                                      db.leaf_heading, _heading_window(fstate, db, config.filter))
     appearance_ms = (time.perf_counter() - ta) * 1e3
-    observation = Observation(feats, obs, silhouette_rows(mask), skin, tuple(costs), proposals)
+    observation = Observation(feats, obs, silhouette_rows(mask), skin, tuple(costs), proposals, min_scale)
     return FrameEvidence(observation, raw, feet_seen, shoe_px, seen, preprocess_ms, appearance_ms)

@@ -58,6 +58,7 @@ from tracker_service.silhouette.background import (
 )
 from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.ghost import ghost_fraction
+from tracker_service.silhouette.placement import feet_in_view
 
 __all__ = ["FrameResult", "TrackerConfig", "TrackerState", "advice", "force_loss", "implausible", "new_state",
            "process_frame"]
@@ -373,13 +374,16 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
                         statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
                         reading=None, init_rows=())
     if not mask.any():  # the person left: wait for them to come back to the centre
-        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0)
+        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0, feet_scale=None)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     fstate = state.filter
     if not config.occlusion and isinstance(fstate, FilterState):  # eq. 14 off (DM1)
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
     # observe
-    ev = observe(frame, mask, fstate, db, camera, config, state.body_scale, state.shoes, state.phase == "tracking")
+    ev = observe(frame, mask, fstate, db, camera, config, state.body_scale, state.shoes, state.phase == "tracking",
+                 state.feet_scale)
+    raw = ev.raw_placement
+    feet_scale = float(raw[2]) if raw is not None else state.feet_scale if not feet_in_view(mask) else None
     ms["appearance"] = ev.appearance_ms
     # estimate
     t2 = time.perf_counter()
@@ -390,7 +394,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     chosen = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config, estimator)
     # publish
     pose, move = publish(chosen, state, frame, mask, ev, est, pose, db, db_body, camera, config)
-    nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised))
+    nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised), feet_scale=feet_scale)
     joints = fk(pose, nxt.body)
     t4 = time.perf_counter()
     ms |= {"preprocess": ev.preprocess_ms, "estimate": (t4 - t1) * 1e3 - ev.preprocess_ms,
@@ -402,7 +406,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     if why is None and chosen.state.supported == 0 and pending + 1 < config.confirm_frames:
         why = "confirming"  # the first poses after the background was learned wait for a few good frames
     if why is not None:  # the publishing stages' memory as before them: a withheld pose leaves no trace
-        nxt = replace(chosen.state, reinits=nxt.reinits, pending=pending + 1 if why == "confirming" else 0)
+        nxt = replace(chosen.state, reinits=nxt.reinits, pending=pending + 1 if why == "confirming" else 0,
+                      feet_scale=feet_scale)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, chosen.body_changed, why, ghost)

@@ -53,6 +53,7 @@ class TrackerState:
     camera_estimate: CameraEstimate | None = None  # the camera's placement measured from its frames
     init_rows: tuple[tuple[float, float], ...] = ()  # the silhouette's (feet, head) rows while initialising
     estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
+    feet_scale: float | None = None  # the feet line's scale while the feet were last in view (observe.py)
 
 
 @dataclass(frozen=True)

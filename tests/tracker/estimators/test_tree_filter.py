@@ -267,3 +267,18 @@ def test_the_shoe_cost_reweights_the_leaf_posterior(small_db) -> None:  # type: 
     w0 = dict(zip(base_st.leaves.tolist(), base_st.weights.tolist(), strict=True)).get(fav, 0.0)
     w1 = dict(zip(st1.leaves.tolist(), st1.weights.tolist(), strict=True)).get(fav, 0.0)
     assert w1 > w0 and w1 > 0.5 and est1.leaf == fav  # exp(-0.05 * 200): the others lose a factor e^10
+
+
+def test_feet_cut_off_bound_the_depth(small_db) -> None:  # type: ignore[no-untyped-def]
+    """Without a feet line (cut off by the border) the observation's ``min_scale`` keeps the
+    estimate at least that near, in the published placement and in the next state."""
+    db, body, motions, _, _ = small_db
+    cam = default_camera()
+    poses = set_heading(motions[0].poses.copy(), heading_of(motions[0].poses) - heading_of(motions[0].poses[:1])[0])
+    mask = render_silhouette(fk(poses[0], body), body.capsule_radii, cam)
+    st, _ = step(initial_state(), db, Observation(preprocess(mask), observed_placement(mask, cam)), FilterParams())
+    bound = float(st.placement[2]) * 1.08
+    _, free = step(st, db, Observation(preprocess(mask)), FilterParams())
+    assert free.placement[2] < bound  # the silhouette alone places it farther than the bound
+    st2, est = step(st, db, Observation(preprocess(mask), min_scale=bound), FilterParams())
+    assert est.placement[2] >= bound and st2.placement[2] >= bound

@@ -242,3 +242,14 @@ def test_bad_frame_is_rejected(small_db) -> None:  # type: ignore[no-untyped-def
     with pytest.raises(ValueError, match="frame must be"):
         process_frame(st, np.zeros((240, 320), np.uint8), loaded.db, loaded.body, loaded.camera, TrackerConfig())
     assert default_camera().width == 320 and cv2 is not None
+
+
+def test_feet_cut_off_by_the_border_bound_the_depth_by_the_last_feet_line() -> None:
+    from tracker_service.pipeline.observe import FEET_CUT_TOLERANCE, nearest_scale
+
+    mask = np.zeros((240, 320), bool)
+    mask[60:200, 140:180] = True  # feet in view: the feet line measures, no bound
+    assert nearest_scale(mask, 1.05, 0.95) is None
+    mask[200:240, 150:170] = True  # the legs run off the bottom border
+    assert nearest_scale(mask, None, 0.95) is None  # feet never seen: nothing to bound by
+    assert nearest_scale(mask, 1.05, 0.95) == pytest.approx(0.95 * 1.05 * (1.0 - FEET_CUT_TOLERANCE))

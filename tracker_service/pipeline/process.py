@@ -60,8 +60,8 @@ from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.ghost import ghost_fraction
 from tracker_service.silhouette.placement import feet_in_view
 
-__all__ = ["FrameResult", "TrackerConfig", "TrackerState", "advice", "force_loss", "implausible", "new_state",
-           "process_frame"]
+__all__ = ["FEET_CUT_ADVICE_FRAMES", "FrameResult", "TrackerConfig", "TrackerState", "advice", "force_loss",
+           "implausible", "new_state", "process_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +71,9 @@ log = logging.getLogger(__name__)
 #: working image (320x240, 62.7 degree lens): too small to track.
 PLAUSIBLE_DEPTH_M = (0.5, 8.0)
 PLAUSIBLE_PELVIS_HEIGHT_M = (-0.5, 2.5)
+#: Frames in a row with the feet cut off by the bottom border before the person is advised to step
+#: back (:func:`advice`): the depth is then only bounded (``pipeline/observe.py: nearest_scale``).
+FEET_CUT_ADVICE_FRAMES = 30
 
 
 def implausible(joints: NDArray[np.float64], camera: Camera) -> str | None:
@@ -119,6 +122,9 @@ def advice(state: TrackerState) -> str:
         return "move a little: part of the room was learned with you in it"
     if state.phase == "waiting":
         return "step into the middle of the camera's view"
+    if state.phase == "tracking" and state.feet_cut >= FEET_CUT_ADVICE_FRAMES:
+        return ("step back a little, or tilt the camera down: your feet are out of the picture, and your "
+                "distance is measured from them")
     return ""
 
 
@@ -374,7 +380,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
                         statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
                         reading=None, init_rows=())
     if not mask.any():  # the person left: wait for them to come back to the centre
-        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0, feet_scale=None)
+        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0, feet_scale=None,
+                        feet_cut=0)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     fstate = state.filter
     if not config.occlusion and isinstance(fstate, FilterState):  # eq. 14 off (DM1)
@@ -383,7 +390,9 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     ev = observe(frame, mask, fstate, db, camera, config, state.body_scale, state.shoes, state.phase == "tracking",
                  state.feet_scale)
     raw = ev.raw_placement
-    feet_scale = float(raw[2]) if raw is not None else state.feet_scale if not feet_in_view(mask) else None
+    cut = not feet_in_view(mask)
+    feet_scale = float(raw[2]) if raw is not None else state.feet_scale if cut else None
+    feet_cut = state.feet_cut + 1 if cut else 0
     ms["appearance"] = ev.appearance_ms
     # estimate
     t2 = time.perf_counter()
@@ -394,7 +403,8 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     chosen = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config, estimator)
     # publish
     pose, move = publish(chosen, state, frame, mask, ev, est, pose, db, db_body, camera, config)
-    nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised), feet_scale=feet_scale)
+    nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised), feet_scale=feet_scale,
+                  feet_cut=feet_cut)
     joints = fk(pose, nxt.body)
     t4 = time.perf_counter()
     ms |= {"preprocess": ev.preprocess_ms, "estimate": (t4 - t1) * 1e3 - ev.preprocess_ms,
@@ -407,7 +417,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         why = "confirming"  # the first poses after the background was learned wait for a few good frames
     if why is not None:  # the publishing stages' memory as before them: a withheld pose leaves no trace
         nxt = replace(chosen.state, reinits=nxt.reinits, pending=pending + 1 if why == "confirming" else 0,
-                      feet_scale=feet_scale)
+                      feet_scale=feet_scale, feet_cut=feet_cut)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, chosen.body_changed, why, ghost)

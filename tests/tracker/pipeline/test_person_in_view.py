@@ -97,7 +97,7 @@ def test_the_person_is_told_what_to_do() -> None:
     from dataclasses import replace
 
     from protocol.skeleton import default_body
-    from tracker_service.pipeline.process import advice
+    from tracker_service.pipeline.process import FEET_CUT_ADVICE_FRAMES, advice
 
     learning = new_state(default_body())
     assert "keep out" in advice(learning)
@@ -105,3 +105,6 @@ def test_the_person_is_told_what_to_do() -> None:
     assert "middle" in advice(replace(learning, phase="waiting"))
     assert "move a little" in advice(replace(learning, phase="tracking", ghost_run=2))
     assert advice(replace(learning, phase="tracking")) == ""
+    tracked = replace(learning, phase="tracking")
+    assert advice(replace(tracked, feet_cut=FEET_CUT_ADVICE_FRAMES - 1)) == ""  # a moment is no advice
+    assert "step back" in advice(replace(tracked, feet_cut=FEET_CUT_ADVICE_FRAMES))

@@ -23,7 +23,7 @@ import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.formats.video import VideoWriter
+from protocol.formats.video import GifFrames, VideoWriter
 from protocol.skeleton import JOINT_INDEX, PARENTS
 
 from .game import GameConfig, GameRecord, GameSnapshot, Phase
@@ -258,10 +258,8 @@ class FrameWriter:
     Writes ``frame_00000.png``... (every ``png_every``-th saved frame), ``round.gif`` (at most
     ``gif_max_frames`` frames, evenly thinned, scaled by ``gif_scale``) and ``round.mp4``.
 
-    The GIF's frames are thinned as they come: when ``gif_max_frames`` are held, every second one
-    is dropped and from then on only every ``gif_step``-th frame is kept, so a live session of any
-    length holds at most ``gif_max_frames`` images (a 10-minute session at 10 frames a second
-    held 3 GB before).
+    The GIF's frames are thinned as they come (:class:`protocol.formats.video.GifFrames`), so a live
+    session of any length holds fewer than ``gif_max_frames`` images.
     """
 
     out_dir: Path
@@ -270,8 +268,7 @@ class FrameWriter:
     gif_scale: float = 1.0
     gif_max_frames: int = 400
     mp4: bool = True
-    frames: list[NDArray[np.uint8]] = field(default_factory=list)
-    gif_step: int = 1
+    _gif: GifFrames | None = None
     _next_t: float = 0.0
     _video: VideoWriter | None = None
     _count: int = 0
@@ -296,11 +293,9 @@ class FrameWriter:
             if self._video is None:
                 self._video = VideoWriter(self.out_dir / "round.mp4", self.fps)
             self._video.write(img)
-        if self._count % self.gif_step == 0:
-            self.frames.append(img)
-            if len(self.frames) >= max(self.gif_max_frames, 2):
-                self.frames = self.frames[::2]
-                self.gif_step *= 2
+        if self._gif is None:
+            self._gif = GifFrames(self.gif_max_frames)
+        self._gif.add(img)
         self._count += 1
 
     def close(self) -> list[Path]:
@@ -310,14 +305,14 @@ class FrameWriter:
             self._video.close()
             self._video = None
             out.append(self.out_dir / "round.mp4")
-        if self.frames:
-            frames = self.frames
+        if self._gif is not None and self._gif.frames:
+            frames = self._gif.frames
             if self.gif_scale != 1.0:
                 frames = [np.asarray(cv2.resize(f, None, fx=self.gif_scale, fy=self.gif_scale,
                                                 interpolation=cv2.INTER_AREA), dtype=np.uint8) for f in frames]
             rgb = [cv2.cvtColor(f, cv2.COLOR_BGR2RGB) for f in frames]
             path = self.out_dir / "round.gif"
-            iio.imwrite(path, np.stack(rgb), duration=round(1000 * self.gif_step / self.fps), loop=0)
+            iio.imwrite(path, np.stack(rgb), duration=round(1000 * self._gif.duration_s(self.fps)), loop=0)
             out.append(path)
             log.info("wrote %d frames to %s", len(frames), path)
         return out

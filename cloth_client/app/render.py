@@ -34,6 +34,7 @@ from cloth_client.avatar.capsules import avatar_capsules, capsule_endpoints
 from cloth_client.avatar.limb_clearance import LIMB_CLEARANCE
 from cloth_client.avatar.skin_mesh import SkinnedMesh, build_skinned_mesh, pose_vertices
 from cloth_client.solver.garment import Garment
+from protocol.formats.video import GifFrames
 from protocol.skeleton import Body
 
 __all__ = ["ClothRenderer", "FrameWriter", "round_cone_mesh", "vertex_normals"]
@@ -210,8 +211,9 @@ class ClothRenderer:
 
 class FrameWriter:
     """Write RGB frames to a video (``.mp4``: H.264 through :class:`protocol.formats.video.VideoWriter`;
-    ``.gif`` via imageio) or, for any
-    other path, as numbered PNG files in that directory.
+    ``.gif`` via imageio, at most 400 frames however long the session,
+    :class:`protocol.formats.video.GifFrames`) or, for any other path, as numbered PNG files in that
+    directory.
 
     Parameters
     ----------
@@ -225,7 +227,7 @@ class FrameWriter:
         self.fps = float(fps)
         self.count = 0
         self._video: Any = None
-        self._gif: list[Any] = []
+        self._gif = GifFrames()  # bounded: thinned as frames come
         self.kind = {".mp4": "mp4", ".gif": "gif"}.get(self.path.suffix.lower(), "png")
         (self.path if self.kind == "png" else self.path.parent).mkdir(parents=True, exist_ok=True)
 
@@ -238,7 +240,7 @@ class FrameWriter:
                 self._video = VideoWriter(self.path, self.fps)
             self._video.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         elif self.kind == "gif":
-            self._gif.append(rgb)
+            self._gif.add(rgb)
         else:
             cv2.imwrite(str(self.path / f"frame_{self.count:05d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         self.count += 1
@@ -248,11 +250,11 @@ class FrameWriter:
         if self._video is not None:
             self._video.close()
             self._video = None
-        if self.kind == "gif" and self._gif:
+        if self.kind == "gif" and self._gif.frames:
             import imageio.v2 as imageio  # pyrender's own dependency
 
-            imageio.mimsave(self.path, self._gif, duration=1.0 / self.fps, loop=0)
-            self._gif = []
+            imageio.mimsave(self.path, list(self._gif.frames), duration=self._gif.duration_s(self.fps), loop=0)
+            self._gif = GifFrames()
 
     def __enter__(self) -> FrameWriter:
         return self

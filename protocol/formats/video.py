@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["VideoInfo", "VideoWriter", "even_frame", "read_frames", "video_info"]
+__all__ = ["GifFrames", "VideoInfo", "VideoWriter", "even_frame", "read_frames", "video_info"]
 
 
 def even_frame(frame: NDArray[np.uint8]) -> NDArray[np.uint8]:
@@ -153,6 +153,38 @@ class VideoWriter:
                     self._container.mux(packet)
             finally:
                 self._container.close()
+
+
+class GifFrames:
+    """A GIF's frames gathered in bounded memory: when ``max_frames`` are held, every second one is
+    dropped and from then on only every :attr:`step`-th frame offered is kept, so a session of any
+    length holds fewer than ``max_frames`` images, evenly spaced (a GIF is encoded only at the end;
+    keeping every frame of a 10-minute session at 10 frames a second held 3 GB).
+
+    Parameters
+    ----------
+    max_frames : int
+        At least 2.
+    """
+
+    def __init__(self, max_frames: int = 400) -> None:
+        self.max_frames = max(int(max_frames), 2)
+        self.frames: list[NDArray[np.uint8]] = []
+        self.step = 1
+        self._offered = 0
+
+    def add(self, frame: NDArray[np.uint8]) -> None:
+        """Offer the next frame (kept when it falls on the current step)."""
+        if self._offered % self.step == 0:
+            self.frames.append(frame)
+            if len(self.frames) >= self.max_frames:
+                self.frames = self.frames[::2]
+                self.step *= 2
+        self._offered += 1
+
+    def duration_s(self, fps: float) -> float:
+        """How long each kept frame shows for frames offered at ``fps``."""
+        return self.step / float(fps)
 
 
 @dataclass(frozen=True)

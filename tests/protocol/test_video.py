@@ -76,3 +76,14 @@ def test_even_frame_pads_with_the_edge() -> None:
     assert np.array_equal(e[:3, :5], f) and np.array_equal(e[3, :5], f[2]) and np.array_equal(e[:3, 5], f[:, 4])
     g = np.zeros((4, 6, 3), np.uint8)
     assert even_frame(g) is g
+
+
+def test_gif_frames_stay_bounded_and_evenly_spaced() -> None:
+    from protocol.formats.video import GifFrames
+
+    g = GifFrames(max_frames=4)
+    for k in range(21):
+        g.add(np.full((2, 2, 3), k, np.uint8))
+        assert len(g.frames) < 4
+    assert [int(f[0, 0, 0]) for f in g.frames] == [0, 8, 16] and g.step == 8
+    assert g.duration_s(10.0) == pytest.approx(0.8)  # each kept frame stands for 8 offered at 10 Hz

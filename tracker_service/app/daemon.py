@@ -44,7 +44,7 @@ from tracker_service.sources.frame_source import FrameSource
 from tracker_service.templates.database import LoadedDatabase
 from tracker_service.viz.overlay import draw_overlay, hud_lines
 
-__all__ = ["FrameHook", "RunOptions", "run_from_options", "run_tracker"]
+__all__ = ["FrameHook", "RunOptions", "preview_payload", "run_from_options", "run_tracker"]
 
 #: A per-frame hook of the daemon: ``hook(timestamp, frame, result)`` after every frame the source
 #: gave (``result`` None: a frame the pipeline could not use), e.g. the overlay video of ``--video``.
@@ -59,6 +59,27 @@ _STATE = {"learning": TrackerState.WAITING, "waiting": TrackerState.WAITING,
 #: Preview frames (the camera frame with the overlay) a second at most, while a viewer watches.
 PREVIEW_HZ = 10.0
 PREVIEW_QUALITY = 80
+
+
+def preview_payload(tid: str, seq: int, ts: float, frame: Any, camera: Any, res: FrameResult,
+                    fps: float | None) -> bytes | None:
+    """The encoded :class:`~protocol.wire.media.PreviewFrame` of one frame: the camera frame with the
+    silhouette, skeleton and HUD drawn on it (:func:`~tracker_service.viz.overlay.draw_overlay`), as a
+    JPEG at :data:`PREVIEW_QUALITY`; None when the JPEG cannot be made. What a watching viewer costs
+    the tracker, :data:`PREVIEW_HZ` times a second (``bench/bench_preview.py``).
+
+    Raises
+    ------
+    ProtocolError
+        When the message does not encode (a frame too large for it).
+    """
+    image = draw_overlay(frame, camera, joints=res.joints, silhouette=res.silhouette,
+                         hud=hud_lines(str(res.phase), fps, res.confidence if res.joints is not None else None))
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_QUALITY])
+    if not ok:
+        return None
+    h, w = image.shape[:2]
+    return encode_preview(PreviewFrame(tid, int(seq), float(ts), w, h, buf.tobytes()))
 
 
 @dataclass
@@ -178,15 +199,12 @@ class _Run:
         if now - self.last_preview < 1.0 / PREVIEW_HZ or not has_subscriber(pub):
             return
         self.last_preview = now
-        image = draw_overlay(frame, self.loaded.camera, joints=res.joints, silhouette=res.silhouette,
-                             hud=hud_lines(str(res.phase), self.counters.fps(), res.confidence if res.joints is not None
-                                           else None))
-        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, PREVIEW_QUALITY])
-        if not ok:
-            return
-        h, w = image.shape[:2]
         try:
-            pub.put(encode_preview(PreviewFrame(self.tid, max(self.seq - 1, 0), float(ts), w, h, buf.tobytes())))
+            payload = preview_payload(self.tid, max(self.seq - 1, 0), ts, frame, self.loaded.camera, res,
+                                      self.counters.fps())
+            if payload is None:
+                return
+            pub.put(payload)
             self.counters.values["previews"] = self.counters.values.get("previews", 0) + 1
         except (zenoh.ZError, ProtocolError) as exc:
             self.counters.values["publish_errors"] += 1

@@ -164,3 +164,22 @@ def test_the_page_shows_the_skeleton_and_the_camera_frame_in_a_real_browser(tmp_
         except subprocess.TimeoutExpired:
             view.kill()
     assert seen[0], seen[1]
+
+
+def test_the_daemons_preview_is_the_overlay_as_a_jpeg_preview_frame() -> None:
+    from protocol.wire.media import decode_preview
+    from tracker_service.app.daemon import preview_payload
+    from tracker_service.camera import default_camera
+    from tracker_service.pipeline.state import FrameResult
+
+    cam = default_camera()
+    body = default_body()
+    frame = np.full((240, 320, 3), 90, np.uint8)
+    sil = np.zeros((240, 320), bool)
+    sil[60:220, 140:180] = True
+    res = FrameResult("tracking", sil, standing_pose(body), fk(standing_pose(body), body), np.ones(N_PARTS, np.float32),
+                      0.8, 0.1, (1, 2, 3), {})
+    msg = decode_preview(preview_payload("cam0", 41, 1.5, frame, cam, res, 29.5) or b"")
+    assert (msg.tracker_id, msg.seq, msg.capture_ts, msg.width, msg.height) == ("cam0", 41, 1.5, 320, 240)
+    image = cv2.imdecode(np.frombuffer(msg.jpeg, np.uint8), cv2.IMREAD_COLOR)
+    assert image.shape == (240, 320, 3) and float(np.abs(image.astype(int) - 90).mean()) > 1.0  # drawn on

@@ -17,6 +17,7 @@ BENCHES = {
     "bench_game.py": ["--per-script", "40", "--loops", "1"],
     "bench_cloth.py": [],
     "bench_tracker.py": ["--takes", "4", "--frames", "90"],
+    "bench_preview.py": [],
 }
 
 

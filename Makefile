@@ -69,7 +69,7 @@ $(WARP_STAMP):
 	$(WARP)/bin/python -m pip install -q "warp-lang==1.19.0" numpy
 	@touch $(WARP_STAMP)
 
-# the cloth solver's speed beside Warp's, one core (about 3 minutes)
+# the cloth solver's speed beside Warp's, one core (about 1.5 minutes)
 bench-warp: $(STAMP) $(WARP_STAMP) apt
 	taskset -c 0 $(BIN)/python bench/bench_cloth.py --skip-sweep --jobs 1 --warp-python $(WARP)/bin/python $(WARP_ARGS)
 

@@ -13,7 +13,7 @@ Speed figures
 * ``springs+integrate``: substeps/s of the mass-spring model alone (structural, shear and bending
   springs with damping, gravity, semi-implicit Euler) on a free square sheet of 48 x 48 = 2,304 and
   64 x 64 = 4,096 particles, no collision - the model NVIDIA Warp's CPU cloth benchmark times;
-* ``warp_cpu``: that benchmark itself, run in the same bench between our two sheets' figures
+* ``warp_cpu``: that benchmark itself, run in the same bench right after our two sheets' figures
   (``bench/peers/warp_cloth.py`` in ``--warp-python``'s environment, by default ``.venv-warp``,
   which ``make bench-warp`` creates; without it the column is empty, never a remembered figure);
 * ``full, no collision``: the same sheets with everything our substep does except body collision
@@ -78,7 +78,11 @@ def warp_sheets(python: Path, sides: tuple[int, ...]) -> dict[int, int]:
         print(f"  warp: {python} not found (make bench-warp creates it); no Warp figures", flush=True)
         return {}
     cmd = [str(python), str(ROOT / "bench" / "peers" / "warp_cloth.py"), "--sides", ",".join(map(str, sides))]
-    run = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=600)
+    try:
+        run = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=600)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        print(f"  warp: the peer did not run: {exc}", flush=True)
+        return {}
     try:
         sheets = json.loads(run.stdout.strip().splitlines()[-1])["sheets"]
         return {int(r["side"]): int(r["substeps_per_s"]) for r in sheets}

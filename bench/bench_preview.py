@@ -55,6 +55,8 @@ def main() -> int:
     evaluate_motion(motion, loaded, cfg, EvalOptions(seed=args.seed, frames=args.frames),
                     observe=lambda fr, _st, res: kept.append((fr.image, res, fr.timestamp)))
     tracked = [k for k in kept if k[1].joints is not None]
+    if not tracked:
+        raise SystemExit(f"no frame of {entry.path} was tracked: nothing to draw a preview of")
     times, sizes = [], []
     for _ in range(args.repeats):
         for image, res, ts in tracked:

@@ -107,6 +107,11 @@ def _recovery_sliding(at: list[float], b1: float, usual_hz: float, step_s: float
     return float("inf")
 
 
+def _finite(x: float) -> float | None:
+    """``x`` rounded to 10 ms; None where the stream never came back (JSON has no infinity)."""
+    return round(float(x), 2) if np.isfinite(x) else None
+
+
 def _longest_gap(at: list[float], b1: float, window_s: float) -> float:
     """The longest gap between arrivals in the ``window_s`` after ``b1`` (the last one before it
     counting from ``b1``)."""
@@ -234,8 +239,8 @@ def main() -> int:
         back_slide = [_recovery_sliding(arrivals[kind], b1, usual) for _, b1, _ in bursts]
         report[kind] = {"usual_hz": usual, "lowest_in_bursts_hz": float(min(during)) if during else None,
                         "slowest_recovery_s": round(float(max(back)), 2) if back else None,
-                        "slowest_recovery_sliding_s": round(float(max(back_slide)), 2) if back_slide else None,
-                        "recovery_sliding_s": [round(float(b), 2) for b in back_slide],
+                        "slowest_recovery_sliding_s": _finite(max(back_slide)) if back_slide else None,
+                        "recovery_sliding_s": [_finite(b) for b in back_slide],
                         "longest_gap_after_burst_s": [round(_longest_gap(arrivals[kind], b1, 3.0), 2)
                                                       for _, b1, _ in bursts]}
     ev_in = sum(1 for t, _ in events if in_burst(t))

@@ -253,7 +253,9 @@ class FrameWriter:
         if self.kind == "gif" and self._gif.frames:
             import imageio.v2 as imageio  # pyrender's own dependency
 
-            imageio.mimsave(self.path, list(self._gif.frames), duration=self._gif.duration_s(self.fps), loop=0)
+            # imageio 2.28 and later take the frame duration in milliseconds
+            imageio.mimsave(self.path, list(self._gif.frames), duration=round(1000 * self._gif.duration_s(self.fps)),
+                            loop=0)
             self._gif = GifFrames()
 
     def __enter__(self) -> FrameWriter:

@@ -45,6 +45,10 @@ def test_simulate_renders_a_gif(tmp_path: Path, capsys: pytest.CaptureFixture[st
 
     frames = imageio.mimread(gif)
     assert 5 <= len(frames) <= 7 and frames[0].shape[:2] == (80, 96)
+    from PIL import Image
+
+    with Image.open(gif) as im:  # simulated at 30 Hz, drawn at 15 frames a second: 67 ms each
+        assert abs(im.info.get("duration", 0) - 1000 / 15) <= 10  # GIF times are in 10 ms steps
 
 
 def test_bad_input_exits_nonzero(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

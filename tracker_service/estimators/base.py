@@ -102,8 +102,9 @@ class Observation:
         Leaves proposed by a cue (the appearance network's nearest leaves).
     min_scale : float or None
         With the feet cut off by the bottom border (no ``placement``): the least scale the person
-        can be at (:func:`tracker_service.silhouette.placement.nearest_scale`, scaled for the body
-        size); None otherwise.
+        can be at (:func:`tracker_service.pipeline.observe.nearest_scale`, scaled for the body
+        size); None otherwise. The tree filter (and so ``tree-elmo``'s start) holds its placement to
+        it; the particle filters and ELMO, comparisons of the papers, do not read it.
     """
 
     features: list[LevelFeatures]

@@ -63,7 +63,7 @@ class FrameEvidence:
     appearance_ms: float
 
 
-def nearest_scale(mask: NDArray[np.bool_], feet_scale: float | None, body_scale: float) -> float | None:
+def nearest_scale(mask: NDArray[np.bool_], last_feet_scale: float | None, body_scale: float) -> float | None:
     """The least scale the person can be at while the image's bottom border cuts off their feet.
 
     The feet line then no longer measures depth, but it still bounds it on one side: had the person
@@ -76,7 +76,7 @@ def nearest_scale(mask: NDArray[np.bool_], feet_scale: float | None, body_scale:
     ----------
     mask : (H, W) bool
         The silhouette (non-empty).
-    feet_scale : float or None
+    last_feet_scale : float or None
         The feet line's scale (templates' own size) when the feet were last in view.
     body_scale : float
         The subject's size over the templates'.
@@ -84,12 +84,12 @@ def nearest_scale(mask: NDArray[np.bool_], feet_scale: float | None, body_scale:
     Returns
     -------
     float or None
-        ``body_scale * feet_scale * (1 - FEET_CUT_TOLERANCE)`` when the feet are cut off and were
+        ``body_scale * last_feet_scale * (1 - FEET_CUT_TOLERANCE)`` when the feet are cut off and were
         seen before; None otherwise.
     """
-    if feet_scale is None or feet_in_view(mask):
+    if last_feet_scale is None or feet_in_view(mask):
         return None
-    return float(body_scale) * float(feet_scale) * (1.0 - FEET_CUT_TOLERANCE)
+    return float(body_scale) * float(last_feet_scale) * (1.0 - FEET_CUT_TOLERANCE)
 
 
 def _heading_window(fstate: object, db: FilterDB, params: FilterParams) -> HeadingWindow:
@@ -105,7 +105,7 @@ def _heading_window(fstate: object, db: FilterDB, params: FilterParams) -> Headi
 
 def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, db: FilterDB, camera: Camera,
             config: TrackerConfig, body_scale: float, shoes: ShoeModel | None, tracking: bool,
-            feet_scale: float | None = None) -> FrameEvidence:
+            last_feet_scale: float | None = None) -> FrameEvidence:
     """Build the frame's observation.
 
     Parameters
@@ -126,9 +126,9 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, d
         The shoe colour learned while initialising.
     tracking : bool
         The tracker is in its tracking phase (shoes are looked for only then).
-    feet_scale : float, optional
+    last_feet_scale : float, optional
         The feet line's scale (templates' own size) when the feet were last in view
-        (``TrackerState.feet_scale``): with the feet now cut off by the bottom border, the
+        (``TrackerState.last_feet_scale``): with the feet now cut off by the bottom border, the
         observation's ``min_scale`` is that scale less :data:`FEET_CUT_TOLERANCE`.
 
     Returns
@@ -141,7 +141,7 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, d
     raw = observed_placement(mask, camera)  # for the templates' own body size
     # a subject k times the templates' size looks k times larger at that depth, feet on the same row
     obs = None if raw is None else scaled_placement(raw, body_scale, camera)
-    min_scale = None if raw is not None else nearest_scale(mask, feet_scale, body_scale)
+    min_scale = None if raw is not None else nearest_scale(mask, last_feet_scale, body_scale)
     skin = observe_skin(frame, mask, config.skin) if config.skin is not None else None
     costs: list[LeafCost] = []
     shoe_px = None

@@ -58,7 +58,6 @@ from tracker_service.silhouette.background import (
 )
 from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.ghost import ghost_fraction
-from tracker_service.silhouette.placement import feet_in_view
 
 __all__ = ["FEET_CUT_ADVICE_FRAMES", "FrameResult", "TrackerConfig", "TrackerState", "advice", "force_loss",
            "implausible", "new_state", "process_frame"]
@@ -182,7 +181,7 @@ def _relearn(state: TrackerState, message: str, *args: object) -> TrackerState:
                 "sees the room behind you", *args)
     return replace(state, phase="learning", background=None, learning=(), relearning=True, frames_in_phase=0,
                    withheld=0, ghost_run=0, ghost_recent=(), relearns=state.relearns + 1, filter=None, reading=None,
-                   smooth=None)
+                   smooth=None, last_feet_scale=None, feet_cut=0)
 
 
 def _withhold(state: TrackerState, config: TrackerConfig, why: str) -> TrackerState:
@@ -378,20 +377,19 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
             return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
         state = replace(state, phase="initialising", frames_in_phase=0, filter=estimator.init(), body_scores={},
                         statures=(), shoe_samples=(), shoes=None, bone_readings=(), proportions_set=False,
-                        reading=None, init_rows=())
+                        reading=None, init_rows=(), last_feet_scale=None, feet_cut=0)
     if not mask.any():  # the person left: wait for them to come back to the centre
-        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0, feet_scale=None,
-                        feet_cut=0)
+        state = replace(state, phase="waiting", filter=estimator.init(), reading=None, withheld=0,
+                        last_feet_scale=None, feet_cut=0)
         return state, FrameResult("waiting", mask, None, None, empty_vis, 0.0, float("nan"), (), ms)
     fstate = state.filter
     if not config.occlusion and isinstance(fstate, FilterState):  # eq. 14 off (DM1)
         fstate = replace(fstate, occluded=np.zeros(N_PARTS, bool))
     # observe
     ev = observe(frame, mask, fstate, db, camera, config, state.body_scale, state.shoes, state.phase == "tracking",
-                 state.feet_scale)
-    raw = ev.raw_placement
-    cut = not feet_in_view(mask)
-    feet_scale = float(raw[2]) if raw is not None else state.feet_scale if cut else None
+                 state.last_feet_scale)
+    raw, cut = ev.raw_placement, not ev.feet_seen
+    last_feet_scale = float(raw[2]) if raw is not None else state.last_feet_scale if cut else None
     feet_cut = state.feet_cut + 1 if cut else 0
     ms["appearance"] = ev.appearance_ms
     # estimate
@@ -403,7 +401,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
     chosen = _initialise(state, frame, mask, ev, est, pose, fstate, db, db_body, camera, config, estimator)
     # publish
     pose, move = publish(chosen, state, frame, mask, ev, est, pose, db, db_body, camera, config)
-    nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised), feet_scale=feet_scale,
+    nxt = replace(move.state, reinits=state.reinits + int(est.reinitialised), last_feet_scale=last_feet_scale,
                   feet_cut=feet_cut)
     joints = fk(pose, nxt.body)
     t4 = time.perf_counter()
@@ -417,7 +415,7 @@ def process_frame(state: TrackerState, frame: NDArray[np.uint8], db: FilterDB, d
         why = "confirming"  # the first poses after the background was learned wait for a few good frames
     if why is not None:  # the publishing stages' memory as before them: a withheld pose leaves no trace
         nxt = replace(chosen.state, reinits=nxt.reinits, pending=pending + 1 if why == "confirming" else 0,
-                      feet_scale=feet_scale, feet_cut=feet_cut)
+                      last_feet_scale=last_feet_scale, feet_cut=feet_cut)
         nxt = _withhold(nxt, config, why)
         return nxt, FrameResult(nxt.phase, mask, None, None, est.visibility, 0.0, est.distance, est.evaluations, ms,
                                 est.reinitialised, chosen.body_changed, why, ghost)

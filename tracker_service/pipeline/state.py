@@ -53,7 +53,7 @@ class TrackerState:
     camera_estimate: CameraEstimate | None = None  # the camera's placement measured from its frames
     init_rows: tuple[tuple[float, float], ...] = ()  # the silhouette's (feet, head) rows while initialising
     estimator: Any = None  # a particle filter (its state is ``filter``); None for the tree filter
-    feet_scale: float | None = None  # the feet line's scale while the feet were last in view (observe.py)
+    last_feet_scale: float | None = None  # the feet line's scale when the feet were last in view (observe.py)
     feet_cut: int = 0  # consecutive frames whose silhouette ran off the image's bottom border
 
 

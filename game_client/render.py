@@ -268,7 +268,7 @@ class FrameWriter:
     gif_scale: float = 1.0
     gif_max_frames: int = 400
     mp4: bool = True
-    _gif: GifFrames | None = None
+    _gif: GifFrames = field(init=False, repr=False)
     _next_t: float = 0.0
     _video: VideoWriter | None = None
     _count: int = 0
@@ -276,6 +276,7 @@ class FrameWriter:
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
+        self._gif = GifFrames(self.gif_max_frames)
 
     def due(self, t: float) -> bool:
         """True if a frame should be saved for game time ``t`` (a new round restarting the game clock
@@ -293,8 +294,6 @@ class FrameWriter:
             if self._video is None:
                 self._video = VideoWriter(self.out_dir / "round.mp4", self.fps)
             self._video.write(img)
-        if self._gif is None:
-            self._gif = GifFrames(self.gif_max_frames)
         self._gif.add(img)
         self._count += 1
 
@@ -305,7 +304,7 @@ class FrameWriter:
             self._video.close()
             self._video = None
             out.append(self.out_dir / "round.mp4")
-        if self._gif is not None and self._gif.frames:
+        if self._gif.frames:
             frames = self._gif.frames
             if self.gif_scale != 1.0:
                 frames = [np.asarray(cv2.resize(f, None, fx=self.gif_scale, fy=self.gif_scale,

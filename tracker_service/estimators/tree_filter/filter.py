@@ -377,8 +377,8 @@ def _prediction(state: FilterState, observation: Observation, params: FilterPara
     observed_placement, observed_rows = observation.placement, observation.rows
     fresh = len(state.leaves) == 0
     pred = state.placement + 0.5 * state.velocity
-    if observed_placement is None and observation.min_scale is not None and pred[2] < observation.min_scale:
-        pred[2] = observation.min_scale  # the feet cut off by the border: at least this near
+    if observation.min_scale is not None:  # the feet cut off by the border: at least this near
+        pred[2] = max(pred[2], observation.min_scale)
     sil_rows = None
     motion_scale = float(pred[2])
     cur_rows = None if observed_rows is None else np.asarray(observed_rows, np.float64)
@@ -508,7 +508,7 @@ def _estimate(state: FilterState, sr: _Search, observation: Observation, db: Fil
     k = int(np.argmax(lp))
     map_leaf = int(leaves[top[k]])
     place = places[k, best[k]]
-    if observation.placement is None and observation.min_scale is not None and place[2] < observation.min_scale:
+    if observation.min_scale is not None and place[2] < observation.min_scale:
         place = place.copy()
         place[2] = observation.min_scale
     dist = float(d_ref[k, best[k]])

@@ -5,6 +5,12 @@ Defaults (no options given)
 * ``mode`` = ``peer``;
 * multicast scouting **off** (``scouting/multicast/enabled = false``), so nothing is discovered on
   the LAN by accident;
+* shared memory **off** (``transport/shared_memory/enabled = false``): in eclipse-zenoh 1.6.2-1.10.2
+  a process keeps every shared-memory pool a peer on the same host ever sent through, mapped and
+  locked, after that peer is gone (16 MiB + 1.25 MiB for each new session sending messages of
+  3 KB or more: +19 MB a session, upstream eclipse-zenoh/zenoh#2787), and where it may not lock
+  that much memory (a user's default 8 MiB limit) it drops those messages without a word. Loopback
+  TCP carries them instead;
 * loopback only: a *publisher* listens on :data:`protocol.wire.keys.DEFAULT_ENDPOINT`
   (``tcp/127.0.0.1:7447``); a *subscriber* connects to it and listens on ``tcp/127.0.0.1:0``
   (an ephemeral loopback port, so peers can still reach each other via gossip).
@@ -32,6 +38,7 @@ import argparse
 import json
 import logging
 import os
+import re
 import signal
 import socket
 import threading
@@ -69,6 +76,12 @@ def _insert(conf: zenoh.Config, key: str, value: Any) -> None:
         conf.insert_json5(key, json.dumps(value))
     except zenoh.ZError as exc:
         raise ValueError(f"invalid zenoh setting {key} = {json.dumps(value)}: {exc}") from exc
+
+
+def _mentions(path: Path, name: str) -> bool:
+    """True if the JSON5 file ``path`` names the key ``name`` outside its comments."""
+    text = re.sub(r"/\*.*?\*/", "", path.read_text(errors="replace"), flags=re.S)
+    return any(re.search(rf"\b{re.escape(name)}\b", line.split("//")[0]) for line in text.splitlines())
 
 
 def _untouched(conf: zenoh.Config, key: str) -> bool:
@@ -129,6 +142,9 @@ def build_config(
         _insert(conf, "mode", mode or "peer")
     if _untouched(conf, "scouting/multicast/enabled"):
         _insert(conf, "scouting/multicast/enabled", False)
+    # zenoh's default is an explicit true, so whether the file sets it is read from the file itself
+    if config_file is None or not _mentions(Path(config_file), "shared_memory"):  # see the module docstring
+        _insert(conf, "transport/shared_memory/enabled", False)
 
     # A client never serves others: whatever its role, it connects (to a router) and listens only on an
     # ephemeral loopback port, so a tracker in client mode does not take the router's port 7447.

@@ -126,6 +126,16 @@ def test_subscriber_defaults_are_loopback() -> None:
     assert _get(conf, "listen/endpoints") == ["tcp/127.0.0.1:0"]
 
 
+@pytest.mark.parametrize("role", ["publisher", "subscriber"])
+def test_shared_memory_is_off_unless_a_config_file_turns_it_on(role: str, tmp_path: Path) -> None:
+    # eclipse-zenoh 1.6.2-1.10.2 keeps every peer's pool mapped and locked (+19 MB a session)
+    assert _get(build_config(role), "transport/shared_memory/enabled") is False  # type: ignore[arg-type]
+    assert _get(build_config(role, mode="router"), "transport/shared_memory/enabled") is False  # type: ignore[arg-type]
+    cfg = tmp_path / "shm.json5"
+    cfg.write_text("{ transport: { shared_memory: { enabled: true } } }\n")
+    assert _get(build_config(role, config_file=cfg), "transport/shared_memory/enabled") is True  # type: ignore[arg-type]
+
+
 def test_explicit_options_replace_defaults() -> None:
     conf = build_config("subscriber", mode="client", connect=["tcp/127.0.0.1:9000", "tcp/127.0.0.1:9001"],
                         listen=[])

@@ -349,3 +349,51 @@ def test_the_documented_lan_commands_work_on_loopback() -> None:
         finally:
             tracker.kill()
             echo.kill()
+
+
+# --- shared memory: a stranger on the same host leaves nothing behind ---------------------------------
+
+_STRANGER = """
+import json, sys, time, zenoh
+c = zenoh.Config()  # zenoh's defaults, shared memory on
+for key, value in [("mode", '"client"'), ("connect/endpoints", json.dumps([sys.argv[1]])),
+                   ("scouting/multicast/enabled", "false")]:
+    c.insert_json5(key, value)
+with zenoh.open(c) as s:
+    for _ in range(6):
+        s.put("mocap/test/shm", b"x" * 8000)  # over zenoh's 3,072-byte shared-memory threshold
+        time.sleep(0.02)
+    time.sleep(0.3)
+"""
+
+
+def _shm_mapped() -> tuple[int, int]:
+    """(Zenoh shared-memory segments mapped into this process, its locked memory in kB)."""
+    maps = sum(".zenoh" in line for line in Path("/proc/self/maps").read_text().splitlines())
+    locked = next(int(line.split()[1]) for line in Path("/proc/self/status").read_text().splitlines()
+                  if line.startswith("VmLck:"))
+    return maps, locked
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").is_file(), reason="reads /proc (Linux)")
+def test_router_maps_no_strangers_shared_memory_and_receives_every_message() -> None:
+    # eclipse-zenoh 1.6.2-1.10.2 maps and locks each same-host sender's 16 MiB pool for good (+19 MB a
+    # session, upstream #2787) and, where it may not lock it, drops those messages: build_config turns
+    # shared memory off, and the receiver's setting decides it whatever the sender's.
+    endpoint = free_tcp_endpoint()
+    before = _shm_mapped()
+    with zenoh.open(router_config(listen=[endpoint])) as router:
+        sub = router.declare_subscriber("mocap/test/**", zenoh.handlers.FifoChannel(100))
+        try:
+            for _ in range(2):  # two sessions, one after the other
+                run = subprocess.run([sys.executable, "-c", _STRANGER, endpoint], capture_output=True,
+                                     text=True, timeout=60, env=child_env())
+                assert run.returncode == 0, run.stderr[-800:]
+            time.sleep(0.2)
+            got = 0
+            while sub.try_recv() is not None:
+                got += 1
+            assert got == 12
+            assert _shm_mapped() == before
+        finally:
+            undeclare_quietly(sub)

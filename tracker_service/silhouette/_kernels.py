@@ -382,7 +382,7 @@ def lower_column_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64], lower_f
 def foreground_kernel(frame: NDArray[np.uint8], chroma_mean: NDArray[np.float32], chroma_inv_var: NDArray[np.float32],
                       bright_mean: NDArray[np.float32], bright_std: NDArray[np.float32], chroma_threshold: float,
                       shadow_ratio: float, highlight_ratio: float, brightness_sigmas: float, dark_level: float,
-                      out: NDArray[np.bool_]) -> None:
+                      out: NDArray[np.bool_], gain: float = 1.0) -> None:
     """Per-pixel background test of :func:`tracker_service.silhouette.background.raw_foreground`, fused.
 
     Same arithmetic in float32 as the numpy reference (chromaticity Mahalanobis distance, brightness
@@ -397,9 +397,13 @@ def foreground_kernel(frame: NDArray[np.uint8], chroma_mean: NDArray[np.float32]
     chroma_threshold, shadow_ratio, highlight_ratio, brightness_sigmas, dark_level : float
     out : (H, W) bool
         Written.
+    gain : float
+        The frame's exposure over the model's (:func:`tracker_service.silhouette.background.exposure_gain`):
+        the brightness ratio is taken to ``gain`` times the model's brightness.
     """
     h, w = out.shape
     eps = np.float32(1e-6)
+    g = np.float32(gain)
     one = np.float32(1.0)
     thr = np.float32(chroma_threshold)
     lo = np.float32(shadow_ratio)
@@ -420,7 +424,7 @@ def foreground_kernel(frame: NDArray[np.uint8], chroma_mean: NDArray[np.float32]
             bm = bright_mean[y, x]
             bmc = max(bm, one)
             b = s / three
-            ratio = b / bmc
+            ratio = b / (bmc * g)
             margin = ks * bright_std[y, x] / bmc
             fg = (ratio < lo - margin) or (ratio > hi + margin)
             if not fg and bm > dark and b > dark and maha > thr:

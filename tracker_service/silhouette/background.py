@@ -9,6 +9,12 @@ is far from the model (Mahalanobis distance above ``chroma_threshold``) *or* its
 to the model leaves ``[shadow_ratio, highlight_ratio]`` by more than the pixel's noise. Shadows
 (darker, same chromaticity) and lighting jitter stay background. In dark pixels chromaticity is
 noise, so only brightness counts there.
+
+A camera's automatic exposure brightens or darkens the whole frame (15-25 % within seconds). The
+model adapts to it only slowly and never next to the person, so the wall round them would turn
+foreground and the silhouette grow a halo that keeps growing; the brightness test therefore compares
+each frame with the model times the frame's exposure gain, the median brightness ratio of the
+frame to the model over the image (:func:`exposure_gain`; the person covers far less than half of it).
 """
 
 from __future__ import annotations
@@ -28,7 +34,9 @@ __all__ = [
     "BackgroundParams",
     "clean_mask",
     "clean_mask_reference",
+    "exposure_gain",
     "learn_background",
+    "measured_exposure",
     "raw_foreground",
     "raw_foreground_reference",
     "smoothed",
@@ -76,6 +84,14 @@ class BackgroundParams:
         Opening by reconstruction: the raw foreground's pieces within 2 pixels of the kept
         silhouette come back (a thin arm the opening erased; specks elsewhere stay out), looked for
         within ``part_reach`` of its height round its box.
+    exposure : bool
+        The brightness test follows the frame's exposure (:func:`exposure_gain`); False: the
+        model's brightness as learned.
+    exposure_tolerance : float
+        The exposure change the shadow and highlight bounds absorb by themselves (they were chosen
+        on frames that drift by 3 %): only the change beyond it is followed. Following every
+        percent pushed the scene's floor shadows, at 0.6 of the lit floor, past ``shadow_ratio``
+        (robustness matrix +0.15 cm on rows without exposure drift).
     """
 
     chroma_threshold: float = 6.0
@@ -90,6 +106,8 @@ class BackgroundParams:
     part_frac: float = 0.01
     part_reach: float = 0.5
     reconstruct: bool = True
+    exposure: bool = True
+    exposure_tolerance: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -286,8 +304,59 @@ def learn_background_robust(frames: NDArray[np.uint8], chroma_std_floor: float =
     return _learned(f, learn, noise)
 
 
+def measured_exposure(model: BackgroundModel, frame: NDArray[np.uint8],
+                      params: BackgroundParams = BackgroundParams(), step: int = 4) -> float:
+    """The frame's exposure relative to the model's: the median ratio of the frame's brightness to the
+    model's over every ``step``-th pixel of every ``step``-th row.
+
+    Only pixels that measure it count: the model's brightness above ``params.dark_level`` (noise
+    below) and both brightnesses under 240 (a clipped pixel cannot brighten). A person covering
+    less than half of the image moves the median by a fraction of the camera's noise.
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    params : BackgroundParams
+    step : int
+
+    Returns
+    -------
+    float
+        In [0.5, 2]; 1 when ``params.exposure`` is off or fewer than 64 pixels measure it.
+    """
+    if not params.exposure:
+        return 1.0
+    b = frame[::step, ::step].sum(axis=-1, dtype=np.float32) / np.float32(3.0)  # a median needs no smoothing
+    bm = model.bright_mean[::step, ::step]
+    ok = (bm > params.dark_level) & (bm < 240.0) & (b < 240.0) & (b > 0.5 * params.dark_level)
+    if int(np.count_nonzero(ok)) < 64:
+        return 1.0
+    return float(np.clip(np.median(b[ok] / bm[ok]), 0.5, 2.0))
+
+
+def exposure_gain(model: BackgroundModel, frame: NDArray[np.uint8], params: BackgroundParams = BackgroundParams()
+                  ) -> float:
+    """The gain the brightness test applies to the model: the frame's :func:`measured_exposure` beyond
+    ``params.exposure_tolerance`` (1 within it; 1.35 with a tolerance of 0.05 gives 1.35 / 1.05).
+
+    Parameters
+    ----------
+    model : BackgroundModel
+    frame : (H, W, 3) uint8
+    params : BackgroundParams
+
+    Returns
+    -------
+    float
+    """
+    g = measured_exposure(model, frame, params)
+    tol = params.exposure_tolerance
+    return float(g / np.clip(g, 1.0 - tol, 1.0 + tol))
+
+
 def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
-                   params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+                   params: BackgroundParams = BackgroundParams(), gain: float | None = None) -> NDArray[np.bool_]:
     """Per-pixel classification before clean-up (numba kernel; reference :func:`raw_foreground_reference`).
 
     Parameters
@@ -295,6 +364,8 @@ def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
     model : BackgroundModel
     frame : (H, W, 3) uint8
     params : BackgroundParams
+    gain : float, optional
+        The frame's exposure gain (default: :func:`exposure_gain`).
 
     Returns
     -------
@@ -302,6 +373,7 @@ def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
     """
     if frame.shape[:2] != model.shape or frame.ndim != 3:
         raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
+    g = exposure_gain(model, frame, params) if gain is None else float(gain)
     out = np.empty(model.shape, bool)
     f32 = np.float32
     frame = smoothed(frame, model.smooth_sigma)
@@ -309,12 +381,12 @@ def raw_foreground(model: BackgroundModel, frame: NDArray[np.uint8],
                       np.ascontiguousarray(model.chroma_inv_var, f32), np.ascontiguousarray(model.bright_mean, f32),
                       np.ascontiguousarray(model.bright_std, f32), chroma_threshold_of(model, params),
                       params.shadow_ratio,
-                      params.highlight_ratio, params.brightness_sigmas, params.dark_level, out)
+                      params.highlight_ratio, params.brightness_sigmas, params.dark_level, out, g)
     return out
 
 
 def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
-                   params: BackgroundParams = BackgroundParams()) -> NDArray[np.bool_]:
+                   params: BackgroundParams = BackgroundParams(), gain: float | None = None) -> NDArray[np.bool_]:
     """Plain-numpy reference of :func:`raw_foreground` (a test holds the two equal).
 
     Parameters
@@ -322,6 +394,7 @@ def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
     model : BackgroundModel
     frame : (H, W, 3) uint8
     params : BackgroundParams
+    gain : float, optional
 
     Returns
     -------
@@ -329,10 +402,11 @@ def raw_foreground_reference(model: BackgroundModel, frame: NDArray[np.uint8],
     """
     if frame.shape[:2] != model.shape or frame.ndim != 3:
         raise ValueError(f"frame {frame.shape} does not match the background model {model.shape}")
+    g = np.float32(exposure_gain(model, frame, params) if gain is None else gain)
     c, b = _chroma_bright(smoothed(frame, model.smooth_sigma))
     d = c - model.chroma_mean
     maha = np.sqrt((d * d * model.chroma_inv_var).sum(axis=-1))
-    ratio = b / np.maximum(model.bright_mean, 1.0)
+    ratio = b / (np.maximum(model.bright_mean, 1.0) * g)
     margin = params.brightness_sigmas * model.bright_std / np.maximum(model.bright_mean, 1.0)
     bright_fg = (ratio < params.shadow_ratio - margin) | (ratio > params.highlight_ratio + margin)
     lit = (model.bright_mean > params.dark_level) & (b > params.dark_level)

@@ -6,7 +6,9 @@ from tracker_service.silhouette.background import (
     BackgroundParams,
     clean_mask,
     clean_mask_reference,
+    exposure_gain,
     learn_background,
+    measured_exposure,
     raw_foreground,
     raw_foreground_reference,
     subtract,
@@ -63,6 +65,37 @@ def test_empty_scene_gives_empty_mask(rng: np.random.Generator) -> None:
     model = learn_background(_frames(rng, base, 10))
     for gain in (0.9, 1.0, 1.12):
         assert not subtract(model, _frames(rng, base, 1, gain)[0]).any()
+
+
+@pytest.mark.parametrize("gain", [0.5, 1.35])
+def test_exposure_drift_beyond_the_highlight_ratio_keeps_the_room_background(rng: np.random.Generator,
+                                                                             gain: float) -> None:
+    # an automatic exposure that darkens the whole frame by half or brightens it by 35 %: past the brightness
+    # test's ratios, so without following the exposure nearly the whole room turns foreground
+    base = _room(rng) * 0.75  # room for the brighter frame below 240
+    model = learn_background(_frames(rng, base, 12))
+    truth = _person_mask()
+    lit = base * gain
+    lit[truth] = (60, 200, 60)
+    frame = np.clip(lit + rng.normal(0, 2.0, lit.shape), 0, 255).astype(np.uint8)
+    assert measured_exposure(model, frame) == pytest.approx(gain, rel=0.03)
+    tol = BackgroundParams().exposure_tolerance  # the bounds absorb the first 5 %
+    assert exposure_gain(model, frame) == pytest.approx(measured_exposure(model, frame) / (1 + np.sign(gain - 1) * tol))
+    assert exposure_gain(model, frame, BackgroundParams(exposure=False)) == 1.0
+    assert raw_foreground(model, frame, BackgroundParams(exposure=False))[~truth].mean() > 0.3
+    sil = subtract(model, frame)
+    assert _iou(sil, truth) > 0.9
+
+
+def test_exposure_gain_ignores_the_person_and_clipped_pixels(rng: np.random.Generator) -> None:
+    base = _room(rng)
+    model = learn_background(_frames(rng, base, 12))
+    frame = _frames(rng, base, 1, 1.1)[0]
+    frame[20:100, 40:120] = (250, 250, 250)  # a third of the image: a white-clad person, clipped
+    assert measured_exposure(model, frame) == pytest.approx(1.1, rel=0.02)
+    assert exposure_gain(model, _frames(rng, base, 1, 1.03)[0]) == 1.0  # within the bounds' own tolerance
+    frame[:] = 255  # nothing left that measures it
+    assert measured_exposure(model, frame) == 1.0 and exposure_gain(model, frame) == 1.0
 
 
 def test_clean_mask_keeps_largest_component_and_fills_holes() -> None:
@@ -152,12 +185,16 @@ def test_foreground_kernel_matches_numpy_reference(rng: np.random.Generator, gai
     frame[_person_mask()] = rng.integers(0, 256, (int(_person_mask().sum()), 3))
     frame[:10, :10] = 0  # black pixels: chromaticity undefined
     frame[-10:, -10:] = 255
-    for params in (BackgroundParams(), BackgroundParams(chroma_threshold=1.5, shadow_ratio=0.5, dark_level=60.0)):
+    for params in (BackgroundParams(), BackgroundParams(chroma_threshold=1.5, shadow_ratio=0.5, dark_level=60.0),
+                   BackgroundParams(exposure=False)):
         fast = raw_foreground(model, frame, params)
         ref = raw_foreground_reference(model, frame, params)
         assert fast.dtype == bool and fast.shape == ref.shape
         assert 0.01 < ref.mean() < 0.99  # both classes present: the comparison means something
         np.testing.assert_array_equal(fast, ref)
+    for g in (0.8, 1.3):  # an explicit gain
+        np.testing.assert_array_equal(raw_foreground(model, frame, gain=g),
+                                      raw_foreground_reference(model, frame, gain=g))
 
 
 def test_the_robust_model_learns_the_room_behind_a_moving_person(rng: np.random.Generator) -> None:

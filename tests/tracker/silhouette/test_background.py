@@ -230,9 +230,12 @@ def test_the_parts_of_a_person_split_by_a_wall_coloured_shirt_are_kept() -> None
     m[8:17, 76:84] = True  # the head over a missing neck
     m[50:53, 150:153] = True  # a speck
     m[30:60, 0:12] = True  # something large far to the side
+    m[30:45, 64:67] = True  # a forearm piece beside the torso, within its rows
+    m[0:6, 93:99] = True  # off the corner, above the head and beside it: a shadow on the wall, no head
+    m[72:80, 91:95] = True  # a hand beside the legs (a piece below the largest), off the largest's corner
     out = clean_mask(m, BackgroundParams(open_px=1, close_px=1))
-    assert out[90, 80] and out[12, 80] and out[40, 80]
-    assert not out[51, 151] and not out[40, 5]
+    assert out[90, 80] and out[12, 80] and out[40, 80] and out[35, 65] and out[76, 93]
+    assert not out[51, 151] and not out[40, 5] and not out[3, 95]
     alone = clean_mask(m, BackgroundParams(open_px=1, close_px=1, part_frac=1.0))
     assert alone[40, 80] and not alone[90, 80] and not alone[12, 80]
     assert np.array_equal(out, clean_mask_reference(m, BackgroundParams(open_px=1, close_px=1)))

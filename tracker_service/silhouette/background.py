@@ -13,8 +13,9 @@ noise, so only brightness counts there.
 A camera's automatic exposure brightens or darkens the whole frame (15-25 % within seconds). The
 model adapts to it only slowly and never next to the person, so the wall round them would turn
 foreground and the silhouette grow a halo that keeps growing; the brightness test therefore compares
-each frame with the model times the frame's exposure gain, the median brightness ratio of the
-frame to the model over the image (:func:`exposure_gain`; the person covers far less than half of it).
+each frame with the model times the frame's exposure gain: the median brightness ratio of the frame
+to the model over the image (:func:`measured_exposure`; the person covers far less than half of it),
+beyond the 5 % that the shadow and highlight bounds absorb by themselves (:func:`exposure_gain`).
 """
 
 from __future__ import annotations
@@ -494,10 +495,11 @@ def _largest_filled(m: NDArray[np.uint8], params: BackgroundParams, image_size: 
     missing waist, a head above a missing neck): a component of at least ``part_frac`` of the
     largest's area whose box touches the largest's box grown by ``part_reach`` of its height (sideways
     a third of that) is a part of the same person and kept, if it lies above or below a kept piece
-    (within its columns, as far) or beside one (within its rows): not off their corners (a backlit person's
-    shadow on the wall above and beside their head was kept as a head and measured a 1.56 m man at
-    2.11 m). Each kept piece counts for the next, so an arm beside a torso that is itself a piece
-    above the legs stays."""
+    (within its columns, at most ``part_reach`` of the largest's height away) or beside one (within
+    its rows, at most a third of that away): not off their corners (a backlit person's shadow on the
+    wall above and beside their head was kept as a head and measured a 1.56 m man at 2.11 m). Each
+    kept piece counts for the next, so an arm beside a torso that is itself a piece above the legs
+    stays."""
     if params.close_px > 1:
         m = np.asarray(cv2.morphologyEx(m, cv2.MORPH_CLOSE, _ellipse(params.close_px)), dtype=np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
@@ -513,9 +515,10 @@ def _largest_filled(m: NDArray[np.uint8], params: BackgroundParams, image_size: 
         reach = params.part_reach * h
         x0, x1 = x - reach / 3, x + w + reach / 3
         y0, y1 = y - reach, y + h + reach
-        near = [j for j in range(1, n) if j != k and stats[j, cv2.CC_STAT_AREA] >= params.part_frac * stats[k, 4]
+        min_area = params.part_frac * stats[k, cv2.CC_STAT_AREA]
+        near = [j for j in range(1, n) if j != k and stats[j, cv2.CC_STAT_AREA] >= min_area
                 and stats[j, 0] < x1 and stats[j, 0] + stats[j, 2] > x0 and stats[j, 1] < y1
-                and stats[j, 1] + stats[j, 3] > y0]
+                and stats[j, 1] + stats[j, 3] > y0]  # within the largest's box grown by the reach
         # of those, the pieces above or below a kept piece (within its columns, ``reach`` away at most) or
         # beside one (within its rows, a third of that), each kept piece joining the reference: not off
         # their corners (a shadow up on the wall above and beside the head is no head)

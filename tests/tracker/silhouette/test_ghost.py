@@ -3,6 +3,8 @@ edges is the hole a person learned into the background left."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -87,6 +89,36 @@ def test_a_room_object_hidden_by_clothes_is_no_ghost_where_the_model_did_not_mov
     assert ghost_fraction(model2, _bgr(frame2, rng), was | now, background_std=still) > 0.3
     off = GhostParams(motion_factor=0.0)
     assert ghost_fraction(model, _bgr(frame, rng), mask, off, background_std=still) > 0.3
+
+
+def test_a_notch_of_camouflage_beside_the_persons_votes_is_no_ghost(rng: np.random.Generator) -> None:
+    """The shirt's right half is the colour of the wall and shows only over a dark object behind it:
+    that piece of silhouette bulges a few pixels out of the hull of the outline voting *person* (a
+    blurred, noisy camera leaves such sparse votes), bounded by the object's edge. A short stretch
+    of contour between two person votes, close to their hull, is a notch in the person, not a ghost
+    left apart; a person who stepped away, touching their ghost or apart from it, is still seen."""
+    room = _room(rng, 0.0)
+    body = _person(160)
+    rows, cols = np.arange(240)[:, None], np.arange(320)[None, :]
+    torso = body & (rows >= 60) & (rows < 185)
+    plant = np.zeros((240, 320), np.uint8)
+    cv2.ellipse(plant, (173, 122), (12, 11), 0, 0, 360, 1, -1)
+    model = room.copy()
+    model[plant > 0] = 40.0
+    frame = room.copy()
+    dark = body & ~(torso & (cols >= 162))  # head, legs and the shirt's left half
+    frame[dark] = 40.0
+    mask = dark | (torso & (plant > 0))
+    still = np.full((240, 320), 2.0, np.float32)
+    p = GhostParams()
+    assert ghost_fraction(model, _bgr(frame, rng), mask, replace(p, notch_margin=0.0),
+                          background_std=still) > p.moved_threshold  # the hull alone: a ghost
+    assert ghost_fraction(model, _bgr(frame, rng), mask, p, background_std=still) < 0.5 * p.moved_threshold
+    was = _person(100)
+    for cx in (150, 220):  # touching the ghost, then apart from it
+        model2, frame2 = room.copy(), room.copy()
+        model2[was], frame2[_person(cx)] = 40.0, 40.0
+        assert ghost_fraction(model2, _bgr(frame2, rng), was | _person(cx), p, background_std=still) > 0.3
 
 
 def test_a_small_or_empty_silhouette_is_not_judged(rng: np.random.Generator) -> None:

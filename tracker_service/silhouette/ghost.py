@@ -227,30 +227,40 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
         # the hull only when it could count more votes than the spread did (every frame: the hot path)
         apart = 0
         if moved < ghost:
-            away = ghosty & ~_hull(outline, persony)
+            hull = _hull(outline, persony)
+            away = ghosty & ~_within(hull, outline, 2)
             if params.notch_margin > 0 and away.any():
                 height = int(ys.max()) - int(ys.min()) + 1
                 notch = _short_runs(m[y0:y1, x0:x1], outline, persony, params.notch_run * height)
-                near = _hull(outline, persony, max(2, round(params.notch_margin * height)))
+                near = _within(hull, outline, max(2, round(params.notch_margin * height)))
                 away &= ~(notch & near)
             apart = int(np.count_nonzero(away))
         ghost = max(moved, apart)
     return ghost / (ghost + person) if ghost + person else 0.0
 
 
-def _hull(outline: NDArray[np.bool_], votes: NDArray[np.bool_], margin: int = 2) -> NDArray[np.bool_]:
-    """(N,) bool: which of the ``outline``'s ``N`` pixels lie within ``margin`` pixels of the convex
-    hull of those voting ``votes`` (none with fewer than three).
+def _hull(outline: NDArray[np.bool_], votes: NDArray[np.bool_]) -> NDArray[np.uint8] | None:
+    """``(h, w) uint8``: the convex hull of the ``outline``'s pixels voting ``votes`` ((N,) bool),
+    filled; None with fewer than three votes. :func:`_within` tells which outline pixels it holds.
 
     A wider margin (8 % of the outline's height) kept a very noisy camera's sparse person votes
     from leaving a piece of a camouflaged shirt outside, but hid the ghost of a person stepping
     away while it still touched them (poses published 1.3 m off)."""
-    ys, xs = np.nonzero(outline)
     if int(np.count_nonzero(votes)) < 3:
-        return np.zeros(len(ys), bool)
+        return None
+    ys, xs = np.nonzero(outline)
     pts = np.stack([xs[votes], ys[votes]], axis=1).astype(np.int32)
     hull = np.zeros(outline.shape, np.uint8)
     cv2.fillConvexPoly(hull, cv2.convexHull(pts), 1)
+    return hull
+
+
+def _within(hull: NDArray[np.uint8] | None, outline: NDArray[np.bool_], margin: int) -> NDArray[np.bool_]:
+    """(N,) bool: which of the ``outline``'s ``N`` pixels lie within ``margin`` pixels of ``hull``
+    (:func:`_hull`; None holds none)."""
+    ys, xs = np.nonzero(outline)
+    if hull is None:
+        return np.zeros(len(ys), bool)
     inside = np.asarray(cv2.dilate(hull, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)))
     return np.asarray(inside[ys, xs] > 0, bool)
 

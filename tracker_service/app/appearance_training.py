@@ -57,6 +57,8 @@ def _configs(options: TrainAppearanceOptions, n: int, plan: Passes) -> list[Any]
         base = replace(base, epochs=options.epochs)
     if options.width is not None:
         base = replace(base, width=options.width)
+    if options.masks is not None:
+        base = replace(base, masks=options.masks)
     return [replace(base, passes=plan[k], posture_passes=extra["posture_passes"][k],
                     vary_passes=extra["vary_passes"][k], seed=k) for k in range(n)]
 
@@ -74,14 +76,16 @@ def _render_views(entries: list[Any], configs: list[Any], data: Path, jobs: int)
             bar.n = done
             bar.refresh()
 
-        render_samples(entries, every_pass, configs[0].size, data, jobs, rendered, load=False)
+        sub = configs[0].masks == "subtracted"
+        render_samples(entries, every_pass, configs[0].size, data, jobs, rendered, load=False, subtracted=sub)
         every_posture = tuple(dict.fromkeys(p for c in configs for p in c.posture_passes))
         if every_posture:
             render_samples(entries, every_posture, configs[0].size, data, jobs, rendered, load=False,
-                           posture=configs[0].posture)
+                           posture=configs[0].posture, subtracted=sub)
         every_varied = tuple(dict.fromkeys(p for c in configs for p in c.vary_passes))
         if every_varied:
-            render_samples(entries, every_varied, configs[0].size, data, jobs, rendered, load=False, vary=True)
+            render_samples(entries, every_varied, configs[0].size, data, jobs, rendered, load=False, vary=True,
+                           subtracted=sub)
 
 
 def _train_networks(entries: list[Any], configs: list[Any], data: Path, jobs: int) -> list[Any]:

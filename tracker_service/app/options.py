@@ -274,6 +274,7 @@ class TrainAppearanceOptions:
     takes: int | None = None
     scripts: tuple[str, ...] = ()
     jobs: int = 1
+    masks: str | None = None
 
 
 @dataclass(frozen=True)

@@ -8,10 +8,14 @@ are never used; the gesture scripts the database holds are takes too, numbered f
 chooses the person, the outfit, the room and the lighting; the benchmark subjects' seeds 3, 7 and
 11 are not among them). Posture passes play the poses stooped and with bent knees first
 (:mod:`tracker_service.build.posture_variation`). Each sample is
-:func:`~tracker_service.cues.appearance.person_crop` of the true silhouette and the joints relative to
-the pelvis in the camera's axes over the person's height. Frames whose silhouette touches the image
-border are skipped. Rendered samples are cached per take and pass under the network's folder
-(``data/``), so a second training does not render again.
+:func:`~tracker_service.cues.appearance.person_crop` of a silhouette and the joints relative to
+the pelvis in the camera's axes over the person's height. The silhouette is the tracker's own by
+default (``TrainConfig.masks``): background subtraction against a model learned from the empty
+room's first frames, as :func:`tracker_service.pipeline.process.process_frame` observes it, with
+its holes where the person's colours are the room's and its shadows; or the renderer's exact one
+(``"truth"``). Frames whose true silhouette touches the image border are skipped. Rendered samples
+are cached per take and pass under the network's folder (``data/``), so a second training does not
+render again.
 
 Network: five 3 x 3 convolutions with batch norm and ReLU (the first with stride 2, max pools after
 the second, third and fourth), then two dense layers; the output is the 72 coordinates and their 72
@@ -44,8 +48,11 @@ from numpy.typing import NDArray
 from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 from tracker_service.build.posture_variation import POSTURE_VERSION, PostureParams, vary_posture
 from tracker_service.cues.appearance import AppearanceNet, Layer, camera_joints, in_view, person_crop
+from tracker_service.pipeline.config import TrackerConfig
+from tracker_service.silhouette.background import learn_background, subtract
 
-__all__ = ["MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "MEMBER_VARY_PASSES", "SCRIPT_ROW_BASE", "VARY_VERSION",
+__all__ = ["MASK_SOURCES", "MASK_VERSION", "MEMBER_PASSES", "MEMBER_POSTURE_PASSES", "MEMBER_VARY_PASSES",
+           "SCRIPT_ROW_BASE", "VARY_VERSION",
            "Samples", "TrainConfig", "config_samples",
            "export_layers", "member_extra_passes", "render_samples", "render_take",
            "train_network", "training_takes", "vary_axes"]
@@ -83,6 +90,9 @@ class TrainConfig:
         Every this many-th training take is kept out of training to report the validation error.
     seed : int
         Initial weights, sample order and augmentation.
+    masks : {"subtracted", "truth"}
+        The silhouette each view is cropped and masked with: the tracker's background subtraction
+        (what the network reads at run time) or the renderer's exact silhouette.
     """
 
     size: int = 64
@@ -98,6 +108,7 @@ class TrainConfig:
     mse_weight: float = 100.0
     validation_every: int = 20
     seed: int = 0
+    masks: str = "subtracted"
 
 
 #: The passes of each network of the product's ensemble (``train-appearance``'s default): the first
@@ -116,6 +127,13 @@ MEMBER_VARY_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((9000, 3),), ((1
 
 #: Bumped whenever :func:`vary_axes` (or what an axis draws) changes: cached renders are named with it.
 VARY_VERSION = 1
+
+#: Bumped whenever the subtracted training silhouettes change (:func:`render_take`): their cached
+#: renders are named with it.
+MASK_VERSION = 1
+
+#: ``TrainConfig.masks`` choices.
+MASK_SOURCES = ("subtracted", "truth")
 
 
 def member_extra_passes(table: tuple[tuple[tuple[int, int], ...], ...], n: int
@@ -171,7 +189,7 @@ class Samples:
 
 
 def render_take(path: str | Path, seed: int, every: int, size: int, posture: PostureParams | None = None,
-                axes: tuple[str, ...] = ()) -> Samples:
+                axes: tuple[str, ...] = (), subtracted: bool = False) -> Samples:
     """Samples of one recording or gesture script played on the person ``seed`` chooses.
 
     Parameters
@@ -187,6 +205,11 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
         ``seed`` too).
     axes : tuple of str, optional
         Domain-randomisation axes of the scene (:class:`~tracker_service.scene.synthetic.SceneConfig`).
+    subtracted : bool
+        Crop and mask each view with the tracker's silhouette: background subtraction
+        (:func:`~tracker_service.silhouette.background.subtract`, the tracker's parameters) against a
+        model learned from the empty room's first ``TrackerConfig.background_frames`` frames. A view
+        whose subtracted silhouette is empty is skipped. False: the renderer's exact silhouette.
 
     Returns
     -------
@@ -201,17 +224,22 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
         motion = replace(motion, poses=vary_posture(motion.poses, motion.body, np.random.default_rng([seed, 1]),
                                                     posture))
     travel = np.ptp(motion.poses[:, [0, 2]], axis=0).max() if motion.n_frames else 0.0
-    cfg = SceneConfig(fps=30.0, in_place=bool(travel > 2.0), variation=axes)  # as evaluate_motion plays it
+    tracker = TrackerConfig()
+    empty = tracker.background_frames if subtracted else 0
+    cfg = SceneConfig(fps=30.0, in_place=bool(travel > 2.0), variation=axes,  # as evaluate_motion plays it
+                      empty_prefix=empty)
     crops, masks, joints = [], [], []
     with SyntheticScene(motion, seed=seed, config=cfg) as scene:
         height = scene.subject.spec.height
+        model = learn_background(np.stack([scene.frame(i).image for i in range(empty)])) if subtracted else None
         start = int(np.random.default_rng(seed).integers(every))
-        for i in range(start, scene.n_frames, every):
+        for i in range(empty + start, scene.n_frames, every):
             fr = scene.frame(i)
             sil = fr.truth.silhouette
             if not in_view(sil):
                 continue  # too small, or cut by the image border
-            c = person_crop(fr.image, sil, size)
+            seen = sil if model is None else subtract(model, fr.image, tracker.background)
+            c = person_crop(fr.image, seen, size)
             if c is None:
                 continue
             crops.append(c[0])
@@ -223,10 +251,10 @@ def render_take(path: str | Path, seed: int, every: int, size: int, posture: Pos
     return Samples(np.asarray(crops), np.asarray(masks), np.asarray(joints, np.float32))
 
 
-def _render_job(job: tuple[str, int, int, int, str, PostureParams | None, bool]) -> str:
-    path, seed, every, size, out, posture, vary = job
+def _render_job(job: tuple[str, int, int, int, str, PostureParams | None, bool, bool]) -> str:
+    path, seed, every, size, out, posture, vary, subtracted = job
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    s = render_take(path, seed, every, size, posture, vary_axes(seed) if vary else ())
+    s = render_take(path, seed, every, size, posture, vary_axes(seed) if vary else (), subtracted)
     tmp = out + ".partial.npz"
     np.savez_compressed(tmp, crops=s.crops, masks=s.masks, joints=s.joints)
     os.replace(tmp, out)
@@ -278,7 +306,8 @@ def _cache_name(row: int, path: str) -> str:
 
 def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[int, int]], size: int,
                    cache: Path, jobs: int = 1, progress: Callable[[int, int], None] | None = None,
-                   load: bool = True, posture: PostureParams | None = None, vary: bool = False) -> Samples:
+                   load: bool = True, posture: PostureParams | None = None, vary: bool = False,
+                   subtracted: bool = False) -> Samples:
     """Samples of every take and pass, rendered in ``jobs`` processes and cached.
 
     Parameters
@@ -301,16 +330,20 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
     vary : bool
         Render each take in a randomised scene (:func:`vary_axes`); cached in folders whose names end
         in ``_vary<version>``.
+    subtracted : bool
+        The tracker's silhouettes (:func:`render_take`); cached in folders whose names end in
+        ``_sub<version>``.
 
     Returns
     -------
     Samples
     """
-    todo: list[tuple[str, int, int, int, str, PostureParams | None, bool]] = []
+    todo: list[tuple[str, int, int, int, str, PostureParams | None, bool, bool]] = []
     files: list[tuple[int, Path]] = []
     tag = ("" if posture is None else
            f"_posture{POSTURE_VERSION}_s{posture.share:g}t{posture.trunk_deg:g}k{posture.knee_deg:g}")
     tag += f"_vary{VARY_VERSION}" if vary else ""
+    tag += f"_sub{MASK_VERSION}" if subtracted else ""
     for base, every in passes:
         folder = cache / f"{base}_{every}_{size}{tag}"
         folder.mkdir(parents=True, exist_ok=True)
@@ -318,7 +351,7 @@ def render_samples(entries: Sequence[tuple[int, str]], passes: Sequence[tuple[in
             f = folder / _cache_name(row, path)
             files.append((row, f))
             if not f.is_file():
-                todo.append((str(path), base + row, every, size, str(f), posture, vary))
+                todo.append((str(path), base + row, every, size, str(f), posture, vary, subtracted))
     done = len(files) - len(todo)
     if progress is not None:
         progress(done, len(files))
@@ -370,12 +403,14 @@ def config_samples(entries: Sequence[tuple[int, str]], config: TrainConfig, cach
     -------
     Samples
     """
-    parts = [render_samples(entries, config.passes, config.size, cache, jobs)]
+    sub = config.masks == "subtracted"
+    parts = [render_samples(entries, config.passes, config.size, cache, jobs, subtracted=sub)]
     if config.posture_passes:
         parts.append(render_samples(entries, config.posture_passes, config.size, cache, jobs,
-                                    posture=config.posture))
+                                    posture=config.posture, subtracted=sub))
     if config.vary_passes:
-        parts.append(render_samples(entries, config.vary_passes, config.size, cache, jobs, vary=True))
+        parts.append(render_samples(entries, config.vary_passes, config.size, cache, jobs, vary=True,
+                                    subtracted=sub))
     if len(parts) == 1:
         return parts[0]
     return Samples(np.concatenate([p.crops for p in parts]), np.concatenate([p.masks for p in parts]),

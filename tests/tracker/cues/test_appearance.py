@@ -357,6 +357,24 @@ def test_randomised_training_views_differ_from_plain_ones() -> None:
     assert np.abs(plain.crops.astype(int) - varied.crops.astype(int)).mean() > 3
 
 
+@pytest.mark.slow
+def test_training_views_masked_as_the_tracker_sees_them(tmp_path: Path) -> None:
+    """The default training silhouette is the tracker's background subtraction: the same views and
+    joints as with the renderer's exact silhouette, masks that mostly agree with it but not exactly,
+    cached apart from the exact ones."""
+    from tracker_service.app.resources import DEFAULT_SCRIPT
+    from tracker_service.build.appearance_train import MASK_VERSION, TrainConfig, render_samples, render_take
+
+    assert TrainConfig().masks == "subtracted"
+    exact = render_take(DEFAULT_SCRIPT, seed=5, every=20, size=32)
+    seen = render_take(DEFAULT_SCRIPT, seed=5, every=20, size=32, subtracted=True)
+    assert len(seen) == len(exact) and np.allclose(seen.joints, exact.joints)
+    iou = (seen.masks & exact.masks).sum(axis=(1, 2)) / (seen.masks | exact.masks).sum(axis=(1, 2))
+    assert np.median(iou) > 0.8 and not np.array_equal(seen.masks, exact.masks)
+    render_samples([(7, str(DEFAULT_SCRIPT))], [(100, 25)], 32, tmp_path, 1, subtracted=True)
+    assert (tmp_path / f"100_25_32_sub{MASK_VERSION}" / "007.npz").is_file()
+
+
 def test_gesture_scripts_join_the_training_takes(tmp_path: Path) -> None:
     """The scripts are numbered after the recordings and cached by name, not by number."""
     from tracker_service.app.resources import DEFAULT_SCRIPT

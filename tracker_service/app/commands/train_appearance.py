@@ -70,6 +70,10 @@ def add_parser(sub: Any, parents: Sequence[argparse.ArgumentParser]) -> argparse
                     help="also train on every gesture script (*.toml) in DIR (repeatable; default: the game's "
                          "and protocol's bundled scripts, the motions build-db adds to the database)")
     sg.add_argument("--no-scripts", action="store_true", help="recordings only")
+    ap.add_argument("--masks", choices=("subtracted", "truth"), default=None,
+                    help="the silhouette each training view is cropped and masked with: the tracker's own background "
+                         "subtraction (what the network reads when tracking) or the renderer's exact one (default: "
+                         "subtracted)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
                     help="rendering processes (default: the CPUs)")
     return ap
@@ -80,7 +84,7 @@ def options_from_args(args: argparse.Namespace) -> TrainAppearanceOptions:
         out=args.out, mocap=args.mocap, epochs=args.epochs, width=args.width, passes=args.passes,
         posture_passes=() if args.no_posture else args.posture_passes,
         vary_passes=() if args.no_vary else args.vary_passes, members=args.members, takes=args.takes,
-        scripts=script_dirs(args), jobs=args.jobs)
+        scripts=script_dirs(args), jobs=args.jobs, masks=args.masks)
 
 
 def _check(options: TrainAppearanceOptions) -> None:

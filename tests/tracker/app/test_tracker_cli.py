@@ -124,12 +124,12 @@ def test_train_appearance_command_end_to_end(tmp_path: Path) -> None:
     assert [m["config"]["seed"] for m in net.meta["members"]] == [0, 1]
     assert [m["config"]["width"] for m in net.meta["members"]] == [8, 8]
     assert net.networks[0][0].weight.shape[0] == 8  # the first convolution's channels
-    for folder in ("7_60_64", "8_60_64"):
+    for folder in ("7_60_64_sub1", "8_60_64_sub1"):  # the tracker's silhouettes (--masks subtracted), cached apart
         names = sorted(p.name for p in (out.parent / "data" / folder).glob("*.npz"))
         assert len(names) == 3 and names[-1].startswith("script_crouch_900_")
-    for folder in ("9_60_64_posture1_s0.5t25k70", "10_60_64_posture1_s0.5t25k70"):  # posture passes, cached apart
+    for folder in ("9_60_64_posture1_s0.5t25k70_sub1", "10_60_64_posture1_s0.5t25k70_sub1"):  # posture passes
         assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
-    for folder in ("11_60_64_vary1", "12_60_64_vary1"):  # randomised-scene passes, cached apart
+    for folder in ("11_60_64_vary1_sub1", "12_60_64_vary1_sub1"):  # randomised-scene passes, cached apart
         assert len(list((out.parent / "data" / folder).glob("*.npz"))) == 3
     r = subprocess.run([sys.executable, "-m", "tracker_service", "train-appearance", "--members", "3", "--out",
                         str(tmp_path / "never.npz")], cwd=REPO, capture_output=True, text=True, timeout=60)

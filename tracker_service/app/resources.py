@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from tracker_service.app.gesture_files import gesture_scripts
+from tracker_service.app.gesture_files import gesture_scripts, scripts_digest
 from tracker_service.app.options import BuildDbOptions, TrackerOptions, TrainAppearanceOptions
 from tracker_service.paths import REPO_ROOT
 
@@ -72,9 +72,73 @@ def build_database(body_name: str, out: Path, options: BuildDbOptions, camera: C
     cam = camera or default_camera()
     db, stats = build_filter_db(motions, body, cam, DbBuildConfig(max_poses=options.max_poses), progress=True)
     meta = {"stats": stats, "takes": [e.path for e in entries], "scripts": [str(s) for s in script_files],
-            "build_s": time.perf_counter() - t0}
+            "build_s": time.perf_counter() - t0,
+            # what a cached default database is checked against (_stale_reason)
+            "options": {"takes": options.takes, "max_poses": options.max_poses,
+                        "script_dirs": [_dir_name(d) for d in options.scripts]},
+            "scripts_digest": scripts_digest(options.scripts)}
     save_db(out, db, body, cam, meta)
     return meta
+
+
+def _dir_name(d: str | Path) -> str:
+    """A script folder as the manifest records it: relative to the repository when inside it."""
+    p = Path(d).resolve()
+    try:
+        return p.relative_to(REPO_ROOT.resolve()).as_posix()
+    except ValueError:
+        return str(p)
+
+
+def _stale_reason(p: Path) -> str | None:
+    """Why the cached database at ``p`` no longer matches the bundled gesture scripts it was built
+    from (None: it does, it was built from other folders, or it has no readable manifest).
+
+    A database built from :data:`DEFAULT_SCRIPT_DIRS` records their digest
+    (:func:`~tracker_service.app.gesture_files.scripts_digest`); one built before digests were
+    recorded is compared by the scripts' names.
+    """
+    import json
+
+    try:
+        meta = json.loads((p / "manifest.json").read_text()).get("meta") or {}
+    except (OSError, ValueError, AttributeError):
+        return None
+    default_dirs = [_dir_name(d) for d in DEFAULT_SCRIPT_DIRS]
+    if "scripts_digest" in meta:
+        dirs = (meta.get("options") or {}).get("script_dirs")
+        if sorted(dirs or []) != sorted(default_dirs) or meta["scripts_digest"] == scripts_digest(
+                default_script_dirs()):
+            return None
+        return "the bundled gesture scripts changed since it was built"
+    def where(f: str | Path) -> str:  # a script by its folder's last two names (checkouts move)
+        return "/".join(Path(f).parts[-3:])
+
+    default_tails = {"/".join(Path(d).parts[-2:]) for d in DEFAULT_SCRIPT_DIRS}
+    recorded = {where(f) for f in meta.get("scripts") or []}
+    if not recorded or not all(r.rsplit("/", 1)[0] in default_tails for r in recorded):
+        return None
+    current = {where(f) for f in gesture_scripts(default_script_dirs(), quiet=True)}
+    if recorded == current:
+        return None
+    return f"it was built from {len(recorded)} bundled gesture scripts, the package now has {len(current)}"
+
+
+def _refresh_if_stale(p: Path, body: str, build_if_missing: bool, camera: Camera | None = None) -> None:
+    """Rebuild the cached database at ``p`` (built from the bundled scripts) when they have changed,
+    with the options it was built with; without ``build_if_missing`` only warn."""
+    reason = _stale_reason(p)
+    if reason is None:
+        return
+    if not build_if_missing:
+        log.warning("the database at %s is out of date (%s); rebuild it with: mocap-tracker build-db", p, reason)
+        return
+    import json
+
+    opts = (json.loads((p / "manifest.json").read_text()).get("meta") or {}).get("options") or {}
+    log.warning("the database at %s is out of date (%s); rebuilding it (a few minutes, cached)", p, reason)
+    build_database(body, p, BuildDbOptions(bodies=(body,), scripts=default_script_dirs(), takes=opts.get("takes"),
+                                           max_poses=opts.get("max_poses")), camera=camera)
 
 
 def requested_camera(tracker: TrackerOptions) -> Camera | None:
@@ -135,6 +199,8 @@ def resolve_db(path: str | None, camera: Camera, body: str = DEFAULT_BODY, build
                else "scaled and centre-cropped")
         log.info("the camera's %dx%d frames are %s to the database's working size %dx%d",
                  camera.width, camera.height, how, base_cam.width, base_cam.height)
+    if not path and (base / "manifest.json").exists():
+        _refresh_if_stale(base, body, build_if_missing, camera=base_cam)
     if same_camera(work, base_cam):
         log.info("the camera matches the database's (%s): using %s", base_cam.summary(), base)
         if not (base / "manifest.json").exists():
@@ -143,6 +209,7 @@ def resolve_db(path: str | None, camera: Camera, body: str = DEFAULT_BODY, build
     target = camera_db_dir(body, work)
     try:
         if same_camera(db_camera(target)[0], work):
+            _refresh_if_stale(target, body, build_if_missing, camera=work)
             log.info("using the database rendered for this camera (%s) at %s", work.summary(), target)
             return target
     except DatabaseError:
@@ -166,6 +233,8 @@ def ensure_db(path: str | None, body: str = DEFAULT_BODY, build_if_missing: bool
     if camera is not None:
         return load_db(resolve_db(path, camera, body, build_if_missing, build_options))
     p = Path(path) if path else default_db_dir(body)
+    if not path and (p / "manifest.json").exists():
+        _refresh_if_stale(p, body, build_if_missing)
     try:
         return load_db(p)
     except DatabaseError as exc:

@@ -59,6 +59,13 @@ __all__ = ["MASK_SOURCES", "MASK_VERSION", "MEMBER_PASSES", "MEMBER_POSTURE_PASS
 
 log = logging.getLogger(__name__)
 
+#: Bumped whenever the subtracted training silhouettes change (:func:`render_take`): their cached
+#: renders are named with it.
+MASK_VERSION = 1
+
+#: ``TrainConfig.masks`` choices.
+MASK_SOURCES = ("subtracted", "truth")
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -110,6 +117,12 @@ class TrainConfig:
     seed: int = 0
     masks: str = "subtracted"
 
+    def __post_init__(self) -> None:
+        if self.masks not in MASK_SOURCES:
+            raise ValueError(f"TrainConfig.masks must be one of {', '.join(MASK_SOURCES)}, not {self.masks!r}")
+        if min(self.size, self.width, self.epochs, self.batch, self.validation_every) < 1:
+            raise ValueError("TrainConfig: size, width, epochs, batch and validation_every must be positive")
+
 
 #: The passes of each network of the product's ensemble (``train-appearance``'s default): the first
 #: network sees :class:`TrainConfig`'s default passes; the second sees two other people per take and
@@ -127,13 +140,6 @@ MEMBER_VARY_PASSES: tuple[tuple[tuple[int, int], ...], ...] = (((9000, 3),), ((1
 
 #: Bumped whenever :func:`vary_axes` (or what an axis draws) changes: cached renders are named with it.
 VARY_VERSION = 1
-
-#: Bumped whenever the subtracted training silhouettes change (:func:`render_take`): their cached
-#: renders are named with it.
-MASK_VERSION = 1
-
-#: ``TrainConfig.masks`` choices.
-MASK_SOURCES = ("subtracted", "truth")
 
 
 def member_extra_passes(table: tuple[tuple[tuple[int, int], ...], ...], n: int

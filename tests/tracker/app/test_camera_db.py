@@ -87,3 +87,54 @@ def test_another_camera_builds_its_database_once(cache: Path, monkeypatch: pytes
 def test_an_unreadable_named_database_is_reported(tmp_path: Path) -> None:
     with pytest.raises(DatabaseError, match="no template database at"):
         resources.resolve_db(str(tmp_path / "nothing"), placed_camera(1.5, 12.0))
+
+
+def test_a_cached_database_follows_the_bundled_scripts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                      caplog: pytest.LogCaptureFixture) -> None:
+    """The default database built from the bundled gesture scripts is rebuilt, with the options it
+    was built with, once those scripts change; one built from other folders is left alone."""
+    import shutil
+
+    monkeypatch.setenv("MOCAP_CACHE", str(tmp_path / "cache"))
+    bundled = tmp_path / "scripts"
+    bundled.mkdir()
+    shutil.copy(resources.DEFAULT_SCRIPT, bundled / "crouch.toml")
+    monkeypatch.setattr(resources, "DEFAULT_SCRIPT_DIRS", (bundled,))
+    base = default_db_dir("mMA")
+    resources.build_database("mMA", base, BuildDbOptions(takes=1, max_poses=60, scripts=(str(bundled),)))
+    assert resources._stale_reason(base) is None
+    real_build = resources.build_database
+    monkeypatch.setattr(resources, "build_database", _no_build)
+    assert resources.ensure_db(None).path == base
+
+    (bundled / "crouch.toml").write_text((bundled / "crouch.toml").read_text() + "\n# edited\n")
+    assert resources._stale_reason(base) == "the bundled gesture scripts changed since it was built"
+    with caplog.at_level(logging.WARNING):
+        assert resources.ensure_db(None, build_if_missing=False).path == base  # warns, builds nothing
+    assert "is out of date (the bundled gesture scripts changed since it was built); rebuild it" in caplog.text
+    calls: list[BuildDbOptions] = []
+
+    def build(body: str, out: Path, options: BuildDbOptions, camera: Any = None) -> Any:
+        calls.append(options)
+        return real_build(body, out, options, camera)
+
+    monkeypatch.setattr(resources, "build_database", build)
+    resources.ensure_db(None)
+    assert [(c.takes, c.max_poses) for c in calls] == [(1, 60)]
+    assert resources._stale_reason(base) is None
+    resources.ensure_db(None)
+    assert len(calls) == 1  # current again: loaded as it is
+
+    # built before digests were recorded: compared by the scripts' names
+    man = json.loads((base / "manifest.json").read_text())
+    for k in ("scripts_digest", "options"):
+        man["meta"].pop(k)
+    (base / "manifest.json").write_text(json.dumps(man))
+    assert resources._stale_reason(base) is None
+    shutil.copy(resources.DEFAULT_SCRIPT, bundled / "crouch_again.toml")
+    assert resources._stale_reason(base) == "it was built from 1 bundled gesture scripts, the package now has 2"
+
+    # built from other folders: never taken for stale
+    resources.build_database("mMA", base, TINY)
+    (bundled / "crouch.toml").unlink()
+    assert resources._stale_reason(base) is None

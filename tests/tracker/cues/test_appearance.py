@@ -357,6 +357,17 @@ def test_randomised_training_views_differ_from_plain_ones() -> None:
     assert np.abs(plain.crops.astype(int) - varied.crops.astype(int)).mean() > 3
 
 
+def test_a_training_configuration_is_checked() -> None:
+    """A typo in code must not train on other masks than asked, nor on nothing."""
+    from tracker_service.build.appearance_train import TrainConfig
+
+    with pytest.raises(ValueError, match="masks must be one of subtracted, truth, not 'exact'"):
+        TrainConfig(masks="exact")
+    with pytest.raises(ValueError, match="must be positive"):
+        TrainConfig(epochs=0)
+    assert TrainConfig(masks="truth").masks == "truth"
+
+
 @pytest.mark.slow
 def test_training_views_masked_as_the_tracker_sees_them(tmp_path: Path) -> None:
     """The default training silhouette is the tracker's background subtraction: the same views and

@@ -299,3 +299,70 @@ def capsule_runs_batch_kernel(caps: NDArray[np.float64], height: int,
     return data[:total].copy(), ptr
 
 # ---- end of the capsule silhouette rasteriser ----
+
+
+# ------------------------------------------------------------------------------------------------
+# Forward kinematics (tracker_service.body.kinematics; reference: protocol.kinematics.fk_global).
+# ------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True)
+def fk_global_kernel(poses: NDArray[np.float64], offsets: NDArray[np.float64], parents: NDArray[np.int64],
+                     slots: NDArray[np.int64], pos: NDArray[np.float64], rot: NDArray[np.float64]) -> None:
+    """Joint positions and global orientations of a batch of poses, written into ``pos`` and ``rot``.
+
+    Rodrigues' formula per rotation slot (Taylor terms below 1e-8 rad, as the reference), then
+    the parent chain in joint order.
+
+    Parameters
+    ----------
+    poses : (N, P) float64
+    offsets : (J, 3) float64
+    parents : (J,) int64
+        Parent of each joint (-1 for the root, which is joint 0).
+    slots : (J,) int64
+        Rotation slot of each joint (-1: an end joint, which keeps its parent's frame).
+    pos : (N, J, 3) float64
+    rot : (N, J, 3, 3) float64
+    """
+    n_joints = offsets.shape[0]
+    local = np.empty((3, 3))
+    for i in range(poses.shape[0]):
+        for j in range(n_joints):
+            s = slots[j]
+            if s >= 0:
+                x = poses[i, 3 + 3 * s]
+                y = poses[i, 4 + 3 * s]
+                z = poses[i, 5 + 3 * s]
+                theta = np.sqrt(x * x + y * y + z * z)
+                if theta < 1e-8:
+                    a = 1.0 - theta * theta / 6.0
+                    b = 0.5 - theta * theta / 24.0
+                else:
+                    a = np.sin(theta) / theta
+                    b = (1.0 - np.cos(theta)) / (theta * theta)
+                local[0, 0] = 1.0 - b * (y * y + z * z)
+                local[0, 1] = -a * z + b * x * y
+                local[0, 2] = a * y + b * x * z
+                local[1, 0] = a * z + b * x * y
+                local[1, 1] = 1.0 - b * (x * x + z * z)
+                local[1, 2] = -a * x + b * y * z
+                local[2, 0] = -a * y + b * x * z
+                local[2, 1] = a * x + b * y * z
+                local[2, 2] = 1.0 - b * (x * x + y * y)
+            par = parents[j]
+            if par < 0:
+                for r in range(3):
+                    pos[i, j, r] = poses[i, r]
+                    for c in range(3):
+                        rot[i, j, r, c] = local[r, c]
+                continue
+            for r in range(3):
+                pos[i, j, r] = (pos[i, par, r] + rot[i, par, r, 0] * offsets[j, 0] + rot[i, par, r, 1] * offsets[j, 1]
+                                + rot[i, par, r, 2] * offsets[j, 2])
+                for c in range(3):
+                    if s >= 0:
+                        rot[i, j, r, c] = (rot[i, par, r, 0] * local[0, c] + rot[i, par, r, 1] * local[1, c]
+                                           + rot[i, par, r, 2] * local[2, c])
+                    else:
+                        rot[i, j, r, c] = rot[i, par, r, c]

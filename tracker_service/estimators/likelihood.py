@@ -34,9 +34,9 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
 from protocol.skeleton import Body
 from tracker_service.body.cardbox import CardboxModel, cardbox_quads, cardbox_sums
+from tracker_service.body.kinematics import fk
 from tracker_service.body.raster import render_silhouettes, silhouette_runs_batch
 from tracker_service.camera import Camera
 from tracker_service.silhouette.features import LevelFeatures

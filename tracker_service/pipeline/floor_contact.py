@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk_global
 from protocol.rotations import axis_rotation, matrix_to_rotvec, rotvec_to_matrix
 from protocol.skeleton import JOINT_INDEX, LIMITS_DEG, PARENTS, POSE_SIZE, ROT_SLOT, Body
+from tracker_service.body.kinematics import fk_global
 from tracker_service.pipeline.refinement import swing_rotation
 
 __all__ = ["FloorParams", "ankle_floor_height", "floor_contact"]

@@ -28,8 +28,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
 from protocol.skeleton import N_PARTS, Body
+from tracker_service.body.kinematics import fk
 from tracker_service.camera import Camera
 from tracker_service.cues.appearance import camera_joints
 from tracker_service.cues.shoes import band_pixels, learn_shoes

@@ -18,8 +18,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, Body
+from tracker_service.body.kinematics import fk
 from tracker_service.body.proportions import adapt_body, bone_lengths_read, describe, proportion_ratios
 from tracker_service.camera import Camera
 from tracker_service.cues.appearance import in_view

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
 from protocol.skeleton import JOINT_INDEX, Body
+from tracker_service.body.kinematics import fk
 from tracker_service.body.raster import render_silhouette
 from tracker_service.camera import Camera
 from tracker_service.estimators.tree_filter.filter import FilterDB

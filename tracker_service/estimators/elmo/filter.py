@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.kinematics import fk
 from protocol.skeleton import POSE_SIZE, Body
+from tracker_service.body.kinematics import fk
 from tracker_service.camera import Camera
 from tracker_service.estimators.base import Estimate, Observation
 from tracker_service.estimators.elmo.hashing import (

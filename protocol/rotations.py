@@ -24,8 +24,10 @@ __all__ = [
     "matrix_to_rotvec",
     "quat_slerp",
     "quat_to_matrix",
+    "quat_to_rotvec",
     "rotation_angle_between",
     "rotvec_to_matrix",
+    "rotvec_to_quat",
     "two_axis_frame",
 ]
 
@@ -128,6 +130,53 @@ def matrix_to_rotvec(m: ArrayLike) -> FloatArray:
     v = q[..., 1:]
     s = np.linalg.norm(v, axis=-1)
     theta = 2.0 * np.arctan2(s, q[..., 0])
+    small = s < 1e-10
+    scale = np.where(small, 2.0, theta / np.where(small, 1.0, s))
+    return v * scale[..., None]
+
+
+def rotvec_to_quat(rotvec: ArrayLike) -> FloatArray:
+    """Rotation vectors to unit quaternions ``(w, x, y, z)`` with ``w >= 0`` (as
+    ``matrix_to_quat(rotvec_to_matrix(r))``, without the matrices).
+
+    Parameters
+    ----------
+    rotvec : (..., 3) float
+        Rotation vectors in radians.
+
+    Returns
+    -------
+    (..., 4) float64
+    """
+    r = np.asarray(rotvec, dtype=np.float64)
+    theta = np.linalg.norm(r, axis=-1)
+    small = theta < 1e-8
+    half = 0.5 * theta
+    # sin(t/2)/t with its Taylor term near zero
+    k = np.where(small, 0.5 - theta**2 / 48.0, np.sin(half) / np.where(small, 1.0, theta))
+    q = np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+    return np.where(q[..., :1] < 0, -q, q)  # an angle past pi: the same rotation, w >= 0
+
+
+def quat_to_rotvec(q: ArrayLike) -> FloatArray:
+    """Unit quaternions ``(w, x, y, z)`` to rotation vectors with angle in ``[0, pi]`` (as
+    ``matrix_to_rotvec(quat_to_matrix(q))``, without the matrices).
+
+    Parameters
+    ----------
+    q : (..., 4) float
+        Need not be normalised.
+
+    Returns
+    -------
+    (..., 3) float64
+    """
+    qa = np.asarray(q, dtype=np.float64)
+    qa = qa / np.linalg.norm(qa, axis=-1, keepdims=True)
+    qa = np.where(qa[..., :1] < 0, -qa, qa)
+    v = qa[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    theta = 2.0 * np.arctan2(s, qa[..., 0])
     small = s < 1e-10
     scale = np.where(small, 2.0, theta / np.where(small, 1.0, s))
     return v * scale[..., None]

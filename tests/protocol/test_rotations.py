@@ -9,8 +9,10 @@ from protocol.rotations import (
     matrix_to_rotvec,
     quat_slerp,
     quat_to_matrix,
+    quat_to_rotvec,
     rotation_angle_between,
     rotvec_to_matrix,
+    rotvec_to_quat,
     two_axis_frame,
 )
 
@@ -74,3 +76,20 @@ def test_two_axis_frame_aligns_primary_exactly(rng: np.random.Generator) -> None
 
 def test_angle_between() -> None:
     assert rotation_angle_between(np.eye(3), axis_rotation("X", 0.3)) == pytest.approx(0.3)
+
+
+def test_direct_quaternion_conversions_equal_the_matrix_route() -> None:
+    """rotvec <-> quaternion without matrices: the same as through them, near zero and at half turns."""
+    rng = np.random.default_rng(11)
+    r = rng.normal(0.0, 1.5, (500, 3))
+    r[0] = 0.0
+    r[1] = 1e-10
+    r[2] = [np.pi, 0.0, 0.0]
+    r[3] = [0.0, 0.0, 1.5 * np.pi]  # past a half turn: w >= 0 all the same
+    q = rotvec_to_quat(r)
+    np.testing.assert_allclose(q, matrix_to_quat(rotvec_to_matrix(r)), rtol=0, atol=1e-12)
+    assert (q[:, 0] >= 0).all() and np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    raw = rng.normal(size=(500, 4))  # not normalised, either sign
+    np.testing.assert_allclose(quat_to_rotvec(raw), matrix_to_rotvec(quat_to_matrix(raw)), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotvec(q[4:]), matrix_to_rotvec(rotvec_to_matrix(r[4:])), rtol=0, atol=1e-9)
+    assert quat_to_rotvec(q[:2]).shape == (2, 3) and np.abs(quat_to_rotvec(q[:2])).max() < 1e-9

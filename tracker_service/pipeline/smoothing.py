@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.rotations import matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix
+from protocol.rotations import quat_to_rotvec, rotvec_to_quat
 
 __all__ = ["OneEuroParams", "SmoothState", "smooth_pose"]
 
@@ -88,7 +88,7 @@ def _alpha(cutoff: NDArray[np.float64] | float, dt: float) -> NDArray[np.float64
 
 
 def _quats(pose: NDArray[np.float64]) -> NDArray[np.float64]:
-    return matrix_to_quat(rotvec_to_matrix(pose[3:].reshape(-1, 3)))
+    return rotvec_to_quat(pose[3:].reshape(-1, 3))
 
 
 def smooth_pose(state: SmoothState | None, t: float, pose: NDArray[np.float64], params: OneEuroParams
@@ -133,5 +133,5 @@ def smooth_pose(state: SmoothState | None, t: float, pose: NDArray[np.float64], 
     qs /= np.linalg.norm(qs, axis=1, keepdims=True)
     out = np.empty_like(pose)
     out[:3] = pos
-    out[3:] = matrix_to_rotvec(quat_to_matrix(qs)).reshape(-1)
+    out[3:] = quat_to_rotvec(qs).reshape(-1)
     return SmoothState(t, pos, dpos, qs, dang), out

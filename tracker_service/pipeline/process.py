@@ -58,6 +58,7 @@ from tracker_service.silhouette.background import (
 )
 from tracker_service.silhouette.features import preprocess
 from tracker_service.silhouette.ghost import ghost_fraction
+from tracker_service.silhouette.placement import feet_scale
 
 __all__ = ["FEET_CUT_ADVICE_FRAMES", "FrameResult", "TrackerConfig", "TrackerState", "advice", "force_loss",
            "implausible", "new_state", "process_frame"]
@@ -272,7 +273,13 @@ def _initialise(state: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.
         # measured whatever tops the silhouette, the head or a raised hand (as the network reads the
         # pose: it sees a raised hand better than the first frames' filter pose)
         tops = seen[0] if seen is not None else camera_joints(fk(pose, db_body), camera, db_body.height)
-        st = measured_stature(mask, raw, camera, db_body, tops)
+        # the depth from the filter's template's own lowest row, not the standing toe tips: a stride
+        # puts the front foot further ahead (the person read too near and too short), a standing
+        # woman's toes less far (too far and too tall)
+        at = raw
+        if est.leaf >= 0 and (s_feet := feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)) is not None:
+            at = np.array([raw[0], 0.0, s_feet])
+        st = measured_stature(mask, at, camera, db_body, tops)
         if np.isfinite(st):
             statures = (*statures, st)
         ref = float(np.median(statures)) if statures else db_body.height

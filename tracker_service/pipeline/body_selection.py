@@ -89,9 +89,10 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
 
     The feet line gives the depth (``observed`` is the database body's placement at that depth:
     ``d = d_ref / s``; the tracker passes the scale that puts the current template's own lowest row
-    on the silhouette's, :func:`~tracker_service.silhouette.placement.feet_scale`) and the row of the floor under the body (not the toe tips, which are
-    nearer the camera and lower in the image); for a level camera the extent is the rows from that
-    floor point to the top of the silhouette times ``d / f``. That extent is the stature while the
+    on the silhouette's, :func:`~tracker_service.silhouette.placement.feet_scale`) and the row of
+    the floor under the body (not the toe tips, which are nearer the camera and lower in the
+    image); for a level camera the extent is the rows from that floor point to the top of the
+    silhouette times ``d / f``. That extent is the stature while the
     head tops the silhouette. With the pose's ``joints`` it is measured whatever tops it: a hand
     (a wave, a greeting: the first frames of many takes) whose top (tip joint plus the hand's end
     radius) is ``a`` statures above the floor and ``z`` statures nearer the camera than the head

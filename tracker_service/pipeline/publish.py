@@ -34,7 +34,7 @@ from tracker_service.pipeline.observe import FrameEvidence
 from tracker_service.pipeline.refinement import refine_pose
 from tracker_service.pipeline.smoothing import smooth_pose
 from tracker_service.pipeline.state import TrackerState
-from tracker_service.silhouette.placement import feet_scale, placement_to_root, scaled_placement
+from tracker_service.silhouette.placement import feet_scale, height_scale, placement_to_root, scaled_placement
 
 __all__ = ["Transition", "publish"]
 
@@ -144,8 +144,14 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
         error_m = expected_error(fk(before, body), fk(pose, body), seen[1], body.height)  # the confidence's
     place = est.placement.copy()
     if config.depth_from_feet and est.leaf >= 0:  # the feet line measures depth better than the template's scale
-        s_feet = feet_scale(mask, db.level_runs[-1].runs(est.leaf), camera.cy)
-        if s_feet is not None and abs(scale * s_feet / place[2] - 1.0) < 0.15:
+        runs = db.level_runs[-1].runs(est.leaf)
+        s_feet = feet_scale(mask, runs, camera.cy)
+        s_height = height_scale(mask, runs)
+        # not while the body is off the floor: the feet line then reads farther than the
+        # silhouette's height by more than twice the filter's airborne gate (a leap, a jump)
+        airborne = (s_feet is not None and s_height is not None
+                    and scale * s_feet < s_height * (1.0 - 2.0 * config.filter.airborne_gate))
+        if s_feet is not None and not airborne and abs(scale * s_feet / place[2] - 1.0) < 0.15:
             # s_feet is the floor-row ratio (the templates' size); the subject is `scale` times it
             place = scaled_placement(np.array([place[0], 0.0, s_feet]), scale, camera)
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)

@@ -21,6 +21,7 @@ __all__ = [
     "TOE_AHEAD_M",
     "feet_in_view",
     "feet_scale",
+    "height_scale",
     "lower_body_column",
     "observed_placement",
     "placement_columns",
@@ -275,6 +276,30 @@ def feet_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], center
     if obs <= center_y + 1 or tpl <= center_y + 1:
         return None
     return (obs - center_y) / (tpl - center_y)
+
+
+def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16]) -> float | None:
+    """Template scale that gives the template the silhouette's height (top to bottom row).
+
+    Unlike :func:`feet_scale` it does not move when the whole body leaves the floor: in a leap the
+    feet line rises while the silhouette's height stays, so the feet line reads farther than this.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    template_runs : (R, 3) int16
+        The matched template's full-resolution runs (reference placement).
+
+    Returns
+    -------
+    float or None
+        None for an empty silhouette or template.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0 or len(template_runs) == 0:
+        return None
+    tpl = float(template_runs[:, 0].max() - template_runs[:, 0].min() + 1)
+    return float(rows[-1] - rows[0] + 1) / tpl
 
 
 def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float64], camera: Camera,

@@ -15,6 +15,7 @@ from tracker_service.silhouette.distance import RunSet, mask_to_runs, runs_to_ma
 from tracker_service.silhouette.placement import (
     feet_in_view,
     feet_scale,
+    height_scale,
     lower_body_column,
     observed_placement,
     placement_to_root,
@@ -283,3 +284,21 @@ def test_feet_cut_off_by_the_image_border_measure_nothing() -> None:
     assert not feet_in_view(close)
     assert observed_placement(close, cam) is None
     assert feet_scale(close, runs, cam.cy) is None
+
+
+def test_a_leap_moves_the_feet_line_not_the_height() -> None:
+    """The same silhouette 12 px higher (the body off the floor): the feet line reads the person
+    farther, the silhouette's height reads them where they are."""
+    cam = default_camera()
+    body = body_model("mMA").body
+    mask = render_silhouette(fk(standing_pose(body), body), body.capsule_radii, cam)
+    runs = mask_to_runs(mask)
+    assert height_scale(mask, runs) == pytest.approx(1.0)
+    leap = np.zeros_like(mask)
+    leap[: mask.shape[0] - 12] = mask[12:]
+    s_feet = feet_scale(leap, runs, cam.cy)
+    assert s_feet is not None and s_feet < 0.9
+    assert height_scale(leap, runs) == pytest.approx(1.0)
+    half = mask_to_runs(mask[::2])  # a template half as tall: twice the scale
+    assert height_scale(mask, half) == pytest.approx(2.0, rel=0.02)
+    assert height_scale(np.zeros_like(mask), runs) is None and height_scale(mask, runs[:0]) is None

@@ -278,8 +278,9 @@ def feet_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], center
     return (obs - center_y) / (tpl - center_y)
 
 
-def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16]) -> float | None:
-    """Template scale that gives the template the silhouette's height (top to bottom row).
+def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], band: float = 0.05) -> float | None:
+    """Template scale that gives the template the silhouette's height, from the lowest row to the
+    highest row near the body's centre column (the head, not a hand raised beside it).
 
     Unlike :func:`feet_scale` it does not move when the whole body leaves the floor: in a leap the
     feet line rises while the silhouette's height stays, so the feet line reads farther than this.
@@ -289,17 +290,34 @@ def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16]) -> f
     mask : (H, W) bool
     template_runs : (R, 3) int16
         The matched template's full-resolution runs (reference placement).
+    band : float
+        Half-width of the centre band, as a fraction of each silhouette's whole height.
 
     Returns
     -------
     float or None
         None for an empty silhouette or template.
     """
-    rows = np.flatnonzero(mask.any(axis=1))
-    if len(rows) == 0 or len(template_runs) == 0:
+
+    def centre_height(m: NDArray[np.bool_]) -> float | None:
+        rows = np.flatnonzero(m.any(axis=1))
+        if len(rows) == 0:
+            return None
+        c = lower_body_column(m)
+        if not np.isfinite(c):
+            return float(rows[-1] - rows[0] + 1)
+        col = int(round(c))
+        hw = max(int(round(band * (rows[-1] - rows[0] + 1))), 1)
+        top = np.flatnonzero(m[:, max(col - hw, 0): col + hw + 1].any(axis=1))
+        return float(rows[-1] - (top[0] if len(top) else rows[0]) + 1)
+
+    if len(template_runs) == 0:
         return None
-    tpl = float(template_runs[:, 0].max() - template_runs[:, 0].min() + 1)
-    return float(rows[-1] - rows[0] + 1) / tpl
+    h_sil = centre_height(mask)
+    h_tpl = centre_height(runs_to_mask(template_runs, mask.shape))
+    if h_sil is None or h_tpl is None:
+        return None
+    return h_sil / h_tpl
 
 
 def placement_to_root(placement: NDArray[np.float64], root_ref: NDArray[np.float64], camera: Camera,

@@ -306,8 +306,8 @@ def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], band
         c = lower_body_column(m)
         if not np.isfinite(c):
             return float(rows[-1] - rows[0] + 1)
-        col = int(round(c))
-        hw = max(int(round(band * (rows[-1] - rows[0] + 1))), 1)
+        col = round(float(c))
+        hw = max(round(band * float(rows[-1] - rows[0] + 1)), 1)
         top = np.flatnonzero(m[:, max(col - hw, 0): col + hw + 1].any(axis=1))
         return float(rows[-1] - (top[0] if len(top) else rows[0]) + 1)
 

@@ -146,7 +146,7 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
     if config.depth_from_feet and est.leaf >= 0:  # the feet line measures depth better than the template's scale
         runs = db.level_runs[-1].runs(est.leaf)
         s_feet = feet_scale(mask, runs, camera.cy)
-        s_height = height_scale(mask, runs)
+        s_height = height_scale(mask, runs, float(db.level_column[-1][est.leaf])) if db.level_column else None
         # not while the body is off the floor: the feet line then reads farther than the
         # silhouette's height by more than twice the filter's airborne gate (a leap, a jump)
         airborne = (s_feet is not None and s_height is not None

@@ -23,6 +23,7 @@ __all__ = [
     "feet_scale",
     "height_scale",
     "lower_body_column",
+    "lower_body_column_reference",
     "observed_placement",
     "placement_columns",
     "placement_rows",
@@ -58,6 +59,22 @@ def lower_body_column(mask: NDArray[np.bool_]) -> float:
     -------
     float
     """
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return float("nan")
+    top, bottom = int(rows[0]), int(rows[-1])
+    first = int(np.ceil(top + LOWER_FRAC * (bottom - top)))
+    # the median of the lower pixels' columns from a column histogram (the reference sorts the
+    # pixels: 10x slower, the same value)
+    cum = np.cumsum(np.count_nonzero(mask[first: bottom + 1], axis=0))
+    n = int(cum[-1])
+    lo = int(np.searchsorted(cum, (n + 1) // 2))
+    hi = int(np.searchsorted(cum, n // 2 + 1))
+    return 0.5 * (lo + hi)
+
+
+def lower_body_column_reference(mask: NDArray[np.bool_]) -> float:
+    """Plain :func:`lower_body_column`: ``np.median`` of the lower pixels' columns (for tests)."""
     ys, xs = np.nonzero(mask)
     if len(ys) == 0:
         return float("nan")
@@ -278,7 +295,8 @@ def feet_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], center
     return (obs - center_y) / (tpl - center_y)
 
 
-def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], band: float = 0.05) -> float | None:
+def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], template_column: float,
+                 band: float = 0.05) -> float | None:
     """Template scale that gives the template the silhouette's height, from the lowest row to the
     highest row near the body's centre column (the head, not a hand raised beside it).
 
@@ -289,7 +307,9 @@ def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], band
     ----------
     mask : (H, W) bool
     template_runs : (R, 3) int16
-        The matched template's full-resolution runs (reference placement).
+        The matched template's full-resolution runs ``(row, x0, x1)`` (reference placement).
+    template_column : float
+        The template's :func:`lower_body_column` (:func:`template_columns`).
     band : float
         Half-width of the centre band, as a fraction of each silhouette's whole height.
 
@@ -298,25 +318,18 @@ def height_scale(mask: NDArray[np.bool_], template_runs: NDArray[np.int16], band
     float or None
         None for an empty silhouette or template.
     """
-
-    def centre_height(m: NDArray[np.bool_]) -> float | None:
-        rows = np.flatnonzero(m.any(axis=1))
-        if len(rows) == 0:
-            return None
-        c = lower_body_column(m)
-        if not np.isfinite(c):
-            return float(rows[-1] - rows[0] + 1)
-        col = round(float(c))
-        hw = max(round(band * float(rows[-1] - rows[0] + 1)), 1)
-        top = np.flatnonzero(m[:, max(col - hw, 0): col + hw + 1].any(axis=1))
-        return float(rows[-1] - (top[0] if len(top) else rows[0]) + 1)
-
-    if len(template_runs) == 0:
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0 or len(template_runs) == 0 or not np.isfinite(template_column):
         return None
-    h_sil = centre_height(mask)
-    h_tpl = centre_height(runs_to_mask(template_runs, mask.shape))
-    if h_sil is None or h_tpl is None:
-        return None
+    col = lower_body_column(mask[rows[0]: rows[-1] + 1])
+    hw = max(band * float(rows[-1] - rows[0] + 1), 1.0)
+    top = np.flatnonzero(mask[:, max(round(col - hw), 0): max(round(col + hw) + 1, 0)].any(axis=1))
+    h_sil = float(rows[-1] - (top[0] if len(top) else rows[0]) + 1)
+    r = template_runs.astype(np.int64)
+    t_lo, t_hi = int(r[:, 0].min()), int(r[:, 0].max())
+    hw_t = max(band * float(t_hi - t_lo + 1), 1.0)
+    near = (r[:, 2] > template_column - hw_t) & (r[:, 1] <= template_column + hw_t)  # x1 exclusive
+    h_tpl = float(t_hi - (int(r[near, 0].min()) if near.any() else t_lo) + 1)
     return h_sil / h_tpl
 
 

@@ -17,6 +17,7 @@ from tracker_service.silhouette.placement import (
     feet_scale,
     height_scale,
     lower_body_column,
+    lower_body_column_reference,
     observed_placement,
     placement_to_root,
     reference_floor_row,
@@ -293,12 +294,28 @@ def test_a_leap_moves_the_feet_line_not_the_height() -> None:
     body = body_model("mMA").body
     mask = render_silhouette(fk(standing_pose(body), body), body.capsule_radii, cam)
     runs = mask_to_runs(mask)
-    assert height_scale(mask, runs) == pytest.approx(1.0)
+    col = lower_body_column(mask)
+    assert height_scale(mask, runs, col) == pytest.approx(1.0)
     leap = np.zeros_like(mask)
     leap[: mask.shape[0] - 12] = mask[12:]
     s_feet = feet_scale(leap, runs, cam.cy)
     assert s_feet is not None and s_feet < 0.9
-    assert height_scale(leap, runs) == pytest.approx(1.0)
-    half = mask_to_runs(mask[::2])  # a template half as tall: twice the scale
-    assert height_scale(mask, half) == pytest.approx(2.0, rel=0.02)
-    assert height_scale(np.zeros_like(mask), runs) is None and height_scale(mask, runs[:0]) is None
+    assert height_scale(leap, runs, col) == pytest.approx(1.0)
+    half = mask[::2]  # a template half as tall: twice the scale
+    assert height_scale(mask, mask_to_runs(half), lower_body_column(half)) == pytest.approx(2.0, rel=0.02)
+    assert height_scale(np.zeros_like(mask), runs, col) is None and height_scale(mask, runs[:0], col) is None
+    # a hand raised above the head beside it does not make the person taller
+    waving = mask.copy()
+    rows = np.flatnonzero(mask.any(axis=1))
+    waving[rows[0] - 20: rows[0], int(col) + 25: int(col) + 29] = True
+    assert height_scale(waving, runs, col) == pytest.approx(1.0)
+
+
+def test_lower_body_column_equals_its_reference(rng: np.random.Generator) -> None:
+    """The column histogram gives exactly ``np.median`` of the lower pixels' columns."""
+    for i in range(400):
+        h, w = rng.integers(1, 50, 2)
+        m = rng.random((h, w)) < rng.random() * 0.5
+        got, want = lower_body_column(m), lower_body_column_reference(m)
+        assert (np.isnan(got) and np.isnan(want)) or got == want, (i, got, want)
+    assert np.isnan(lower_body_column(np.zeros((4, 4), bool)))

@@ -8,9 +8,26 @@ from numpy.typing import ArrayLike, NDArray
 from protocol.rotations import rotvec_to_matrix
 from protocol.skeleton import N_JOINTS, PARENTS, POSE_SIZE, ROT_SLOT, Body
 
-__all__ = ["fk", "fk_global"]
+__all__ = ["fk", "fk_global", "pose_batch"]
 
 _CHUNK = 256
+
+
+def pose_batch(poses: ArrayLike) -> tuple[NDArray[np.float64], bool]:
+    """``poses`` as a C-contiguous ``(N, P)`` float64 batch, and whether it was one ``(P,)`` pose.
+
+    Raises
+    ------
+    ValueError
+        Any other shape.
+    """
+    p = np.ascontiguousarray(poses, dtype=np.float64)
+    single = p.ndim == 1
+    if single:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != POSE_SIZE:
+        raise ValueError(f"poses must have shape (N, {POSE_SIZE}), got {np.shape(poses)}")
+    return p, single
 
 
 def fk_global(poses: ArrayLike, body: Body) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -30,12 +47,7 @@ def fk_global(poses: ArrayLike, body: Body) -> tuple[NDArray[np.float64], NDArra
     rotations : (N, J, 3, 3) float64
         Global orientation of each joint's frame (end joints inherit their parent's).
     """
-    p = np.asarray(poses, dtype=np.float64)
-    single = p.ndim == 1
-    if single:
-        p = p[None]
-    if p.ndim != 2 or p.shape[1] != POSE_SIZE:
-        raise ValueError(f"poses must have shape (N, {POSE_SIZE}), got {np.shape(poses)}")
+    p, single = pose_batch(poses)
     n = p.shape[0]
     if n > _CHUNK:  # cache-sized blocks: ~3x faster than one pass over a large batch
         parts = [fk_global(p[i: i + _CHUNK], body) for i in range(0, n, _CHUNK)]

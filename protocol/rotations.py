@@ -126,7 +126,11 @@ def matrix_to_rotvec(m: ArrayLike) -> FloatArray:
     -------
     (..., 3) float64
     """
-    q = matrix_to_quat(m)  # w >= 0, so the angle is in [0, pi]
+    return _unit_quat_to_rotvec(matrix_to_quat(m))  # w >= 0, so the angle is in [0, pi]
+
+
+def _unit_quat_to_rotvec(q: FloatArray) -> FloatArray:
+    """Unit quaternions with ``w >= 0`` to rotation vectors (angle in ``[0, pi]``)."""
     v = q[..., 1:]
     s = np.linalg.norm(v, axis=-1)
     theta = 2.0 * np.arctan2(s, q[..., 0])
@@ -173,13 +177,7 @@ def quat_to_rotvec(q: ArrayLike) -> FloatArray:
     """
     qa = np.asarray(q, dtype=np.float64)
     qa = qa / np.linalg.norm(qa, axis=-1, keepdims=True)
-    qa = np.where(qa[..., :1] < 0, -qa, qa)
-    v = qa[..., 1:]
-    s = np.linalg.norm(v, axis=-1)
-    theta = 2.0 * np.arctan2(s, qa[..., 0])
-    small = s < 1e-10
-    scale = np.where(small, 2.0, theta / np.where(small, 1.0, s))
-    return v * scale[..., None]
+    return _unit_quat_to_rotvec(np.where(qa[..., :1] < 0, -qa, qa))
 
 
 def axis_rotation(axis: str, angle: ArrayLike) -> FloatArray:

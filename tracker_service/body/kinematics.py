@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from protocol.skeleton import N_JOINTS, PARENTS, POSE_SIZE, ROT_SLOT, Body
+from protocol.kinematics import pose_batch
+from protocol.skeleton import N_JOINTS, PARENTS, ROT_SLOT, Body
 from tracker_service.body._kernels import fk_global_kernel
 
 __all__ = ["fk", "fk_global"]
@@ -37,12 +38,7 @@ def fk_global(poses: ArrayLike, body: Body) -> tuple[NDArray[np.float64], NDArra
     rotations : (N, J, 3, 3) float64
         Global orientation of each joint's frame.
     """
-    p = np.ascontiguousarray(poses, dtype=np.float64)
-    single = p.ndim == 1
-    if single:
-        p = p[None]
-    if p.ndim != 2 or p.shape[1] != POSE_SIZE:
-        raise ValueError(f"poses must have shape (N, {POSE_SIZE}), got {np.shape(poses)}")
+    p, single = pose_batch(poses)
     pos = np.empty((p.shape[0], N_JOINTS, 3))
     rot = np.empty((p.shape[0], N_JOINTS, 3, 3))
     fk_global_kernel(p, np.ascontiguousarray(body.offsets, np.float64), _PARENTS, _SLOTS, pos, rot)

@@ -90,6 +90,17 @@ def _dir_name(d: str | Path) -> str:
         return str(p)
 
 
+def _build_meta(p: Path) -> dict[str, Any]:
+    """The ``meta`` of the manifest at ``p`` (empty when unreadable)."""
+    import json
+
+    try:
+        meta = json.loads((p / "manifest.json").read_text()).get("meta")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
 def _stale_reason(p: Path) -> str | None:
     """Why the cached database at ``p`` no longer matches the bundled gesture scripts it was built
     from (None: it does, it was built from other folders, or it has no readable manifest).
@@ -98,12 +109,11 @@ def _stale_reason(p: Path) -> str | None:
     (:func:`~tracker_service.app.gesture_files.scripts_digest`); one built before digests were
     recorded is compared by the scripts' names.
     """
-    import json
+    return _stale(_build_meta(p))
 
-    try:
-        meta = json.loads((p / "manifest.json").read_text()).get("meta") or {}
-    except (OSError, ValueError, AttributeError):
-        return None
+
+def _stale(meta: dict[str, Any]) -> str | None:
+    """:func:`_stale_reason` of a manifest's ``meta``."""
     default_dirs = [_dir_name(d) for d in DEFAULT_SCRIPT_DIRS]
     if "scripts_digest" in meta:
         dirs = (meta.get("options") or {}).get("script_dirs")
@@ -111,6 +121,7 @@ def _stale_reason(p: Path) -> str | None:
                 default_script_dirs()):
             return None
         return "the bundled gesture scripts changed since it was built"
+
     def where(f: str | Path) -> str:  # a script by its folder's last two names (checkouts move)
         return "/".join(Path(f).parts[-3:])
 
@@ -127,15 +138,14 @@ def _stale_reason(p: Path) -> str | None:
 def _refresh_if_stale(p: Path, body: str, build_if_missing: bool, camera: Camera | None = None) -> None:
     """Rebuild the cached database at ``p`` (built from the bundled scripts) when they have changed,
     with the options it was built with; without ``build_if_missing`` only warn."""
-    reason = _stale_reason(p)
+    meta = _build_meta(p)
+    reason = _stale(meta)
     if reason is None:
         return
     if not build_if_missing:
         log.warning("the database at %s is out of date (%s); rebuild it with: mocap-tracker build-db", p, reason)
         return
-    import json
-
-    opts = (json.loads((p / "manifest.json").read_text()).get("meta") or {}).get("options") or {}
+    opts = meta.get("options") or {}
     log.warning("the database at %s is out of date (%s); rebuilding it (a few minutes, cached)", p, reason)
     build_database(body, p, BuildDbOptions(bodies=(body,), scripts=default_script_dirs(), takes=opts.get("takes"),
                                            max_poses=opts.get("max_poses")), camera=camera)

@@ -77,6 +77,16 @@ def _feet_offset(pose: NDArray[np.float64], body: Body, db_body: Body, scale: fl
     return float(scale * fk(rel, db_body)[_FEET, 1].min() - fk(rel, body)[_FEET, 1].min())
 
 
+def _airborne(mask: NDArray[np.bool_], runs: NDArray[np.int16], db: FilterDB, leaf: int, feet: float,
+              gate: float) -> bool:
+    """Whether the body is off the floor: the feet line's scale ``feet`` reads farther than the
+    silhouette's height (:func:`height_scale`) by more than twice the filter's airborne gate."""
+    if not db.level_column:
+        return False
+    s_height = height_scale(mask, runs, float(db.level_column[-1][leaf]))
+    return s_height is not None and feet < s_height * (1.0 - 2.0 * gate)
+
+
 def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask: NDArray[np.bool_],
             ev: FrameEvidence, est: Estimate, pose: NDArray[np.float64], db: FilterDB, db_body: Body,
             camera: Camera, config: TrackerConfig) -> tuple[NDArray[np.float64], Transition]:
@@ -146,12 +156,8 @@ def publish(move: Transition, prev: TrackerState, frame: NDArray[np.uint8], mask
     if config.depth_from_feet and est.leaf >= 0:  # the feet line measures depth better than the template's scale
         runs = db.level_runs[-1].runs(est.leaf)
         s_feet = feet_scale(mask, runs, camera.cy)
-        s_height = height_scale(mask, runs, float(db.level_column[-1][est.leaf])) if db.level_column else None
-        # not while the body is off the floor: the feet line then reads farther than the
-        # silhouette's height by more than twice the filter's airborne gate (a leap, a jump)
-        airborne = (s_feet is not None and s_height is not None
-                    and scale * s_feet < s_height * (1.0 - 2.0 * config.filter.airborne_gate))
-        if s_feet is not None and not airborne and abs(scale * s_feet / place[2] - 1.0) < 0.15:
+        if s_feet is not None and abs(scale * s_feet / place[2] - 1.0) < 0.15 and not _airborne(
+                mask, runs, db, est.leaf, scale * s_feet, config.filter.airborne_gate):
             # s_feet is the floor-row ratio (the templates' size); the subject is `scale` times it
             place = scaled_placement(np.array([place[0], 0.0, s_feet]), scale, camera)
     pose[:3] = placement_to_root(place, pose[:3], camera, body_scale=scale)

@@ -113,8 +113,22 @@ class RunSet:
             ``(y_start, y_end, x_start, x_end)``.
         rect_ptr : (T + 1,) int64
         """
+        cols, ptr = self.rectangle_columns()
+        return cols.T, ptr
+
+    def rectangle_columns(self) -> tuple[NDArray[np.int16], NDArray[np.int64]]:
+        """:meth:`rectangles` as four contiguous columns, the layout the summed-area kernel reads
+        (the rectangles are kept in this one copy; :meth:`rectangles` is its transposed view).
+
+        Returns
+        -------
+        rect_cols : (4, Q) int16
+            Rows ``y_start, y_end, x_start, x_end``.
+        rect_ptr : (T + 1,) int64
+        """
         if self._rects is None:
-            self._rects = run_rectangles(self.data, self.ptr)
+            rects, ptr = run_rectangles(self.data, self.ptr)
+            self._rects = (np.ascontiguousarray(rects.T), ptr)
         return self._rects
 
 
@@ -237,8 +251,8 @@ def evaluate_template_grid(feat: LevelFeatures, runset: RunSet, ids: NDArray[np.
     out = np.empty(tr.shape[:2])
     idx = np.ascontiguousarray(ids, np.int64)
     if (sat := _exact_sat(feat, oc)) is not None:
-        rects, rptr = runset.rectangles()
-        eval_rects_sat_kernel(sat, rects, rptr, idx, tr, float(center[0]), float(center[1]), oc, out)
+        cols, rptr = runset.rectangle_columns()
+        eval_rects_sat_kernel(sat, cols, rptr, idx, tr, float(center[0]), float(center[1]), oc, out)
     else:
         eval_runs_grid_kernel(feat.integral, runset.data, runset.ptr, idx, tr, float(center[0]), float(center[1]),
                               oc, out)

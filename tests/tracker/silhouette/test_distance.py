@@ -182,6 +182,11 @@ def test_run_rectangles_cover_the_runs_and_match_the_reference(rng: np.random.Ge
         for y0, y1, x0, x1 in got.astype(np.int64):
             back[y0:y1, x0:x1] += 1
         np.testing.assert_array_equal(back, m.astype(int))  # every pixel in exactly one rectangle
+    cols, cptr = rs.rectangle_columns()  # the copy the run set keeps: the same rectangles, column-wise
+    assert cols.flags.c_contiguous and cols.shape == (4, len(rects))
+    np.testing.assert_array_equal(cols.T, rects)
+    np.testing.assert_array_equal(rs.rectangles()[0], rects)
+    np.testing.assert_array_equal(cptr, rptr)
     with pytest.raises(ValueError, match="pointer"):
         run_rectangles(rs.data, rs.ptr[:-2])
 
@@ -212,8 +217,8 @@ def test_summed_area_kernel_is_bit_equal_to_the_row_kernel(rng: np.random.Genera
             want = np.empty(grid.shape[:2])
             got = np.empty(grid.shape[:2])
             eval_runs_grid_kernel(feats.integral, rs.data, rs.ptr, idx, np.ascontiguousarray(grid), cx, cy, oc, want)
-            rects, rptr = rs.rectangles()
-            eval_rects_sat_kernel(feats.sat, rects, rptr, idx, np.ascontiguousarray(grid), cx, cy, oc, got)
+            cols, rptr = rs.rectangle_columns()
+            eval_rects_sat_kernel(feats.sat, cols, rptr, idx, np.ascontiguousarray(grid), cx, cy, oc, got)
             assert len(np.unique(want)) > g  # placements differ: the comparison is not vacuous
             np.testing.assert_array_equal(got, want)
         # through the public functions: the XOR features take the summed-area path, same numbers

@@ -172,6 +172,17 @@ def test_screened_grid_evaluates_the_grid_only_for_the_best_nodes(rng: np.random
     assert np.isinf(np.delete(centre, 4, axis=2)).all()
 
 
+def test_k_smallest_is_the_sorted_selection(rng: np.random.Generator) -> None:
+    """The screen's partition selects the same nodes as a full sort would (distinct costs)."""
+    from tracker_service.estimators.tree_filter.filter import _k_smallest
+
+    x = rng.permutation(500).astype(np.float64)
+    for k in (1, 48, 96, 499):
+        np.testing.assert_array_equal(np.sort(_k_smallest(x, k)), np.sort(np.argsort(x)[:k]))
+    np.testing.assert_array_equal(np.sort(_k_smallest(x[:5], 96)), np.arange(5))
+    assert len(_k_smallest(x, 0)) == 0 and _k_smallest(x, 3).dtype == np.int64
+
+
 def test_tempered_weights_hedge_between_modes() -> None:
     from tracker_service.estimators.tree_filter.filter import mean_pose, tempered
 

@@ -173,6 +173,26 @@ def _level_cost(db: FilterDB, feats: LevelFeatures, level: int, nodes: NDArray[n
     return t + _skin_cost(db, level, sub, pl, skin, params), pl, d.size
 
 
+def _k_smallest(x: NDArray[np.float64], k: int) -> NDArray[np.int64]:
+    """Indices of the ``k`` smallest entries of ``x`` in no particular order (a partition, not a
+    sort: the callers take their union with another set).
+
+    Parameters
+    ----------
+    x : (n,) float64
+    k : int
+
+    Returns
+    -------
+    (min(k, n),) int64
+    """
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    if k >= len(x):
+        return np.arange(len(x), dtype=np.int64)
+    return np.asarray(np.argpartition(x, k - 1)[:k], np.int64)
+
+
 def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]],
                                  tuple[NDArray[np.float64], NDArray[np.float64], int]],
               offs: NDArray[np.float64], node_prior: NDArray[Any], n_best: int
@@ -204,7 +224,7 @@ def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]]
     n, n_h = t0.shape
     lik = t0.min(axis=1)
     lp = np.log(np.maximum(node_prior, 1e-300)) - lik
-    sel = np.union1d(np.argsort(-lp)[:n_best], np.argsort(lik)[:n_best])
+    sel = np.union1d(_k_smallest(-lp, n_best), _k_smallest(lik, n_best))
     t_sel, p_sel, n1 = neg_log(sel, offs)
     cost = np.full((n, n_h, g), np.inf)
     places = np.repeat(p0[:, :, None, :], g, axis=2)
@@ -444,7 +464,7 @@ def _search(db: FilterDB, features: list[LevelFeatures], params: FilterParams, s
             keep = keep[np.argsort(-post[keep])][: params.max_keep[lvl]]
             n_lik = params.keep_likelihood[lvl] if lvl < len(params.keep_likelihood) else 0
             if n_lik:  # data-driven proposal: the best nodes by likelihood alone survive a misleading prior
-                keep = np.union1d(keep, np.argsort(cost)[:n_lik])
+                keep = np.union1d(keep, _k_smallest(cost, n_lik))
             # the kept nodes' children start from their parent's best placement, corrected for the
             # difference of their template columns (numba; reference: reference.expand_reference)
             cols = db.level_column

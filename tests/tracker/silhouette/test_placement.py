@@ -319,3 +319,30 @@ def test_lower_body_column_equals_its_reference(rng: np.random.Generator) -> Non
         got, want = lower_body_column(m), lower_body_column_reference(m)
         assert (np.isnan(got) and np.isnan(want)) or got == want, (i, got, want)
     assert np.isnan(lower_body_column(np.zeros((4, 4), bool)))
+
+
+def test_body_scores_search_once_per_height(small_db, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+    """Models of one height (``wMA``, ``wMB``: 1.58 m) get the same score from one search; another
+    height (``mPA``: 1.60 m) its own."""
+    import tracker_service.pipeline.body_selection as bs
+    from tracker_service.estimators.tree_filter.filter import FilterParams
+    from tracker_service.silhouette.features import preprocess
+
+    db, body, motions, *_ = small_db
+    cam = default_camera()
+    mask = render_silhouette(fk(motions[0].poses[0], body), body.capsule_radii, cam)
+    placed = observed_placement(mask, cam)
+    assert placed is not None
+    searches: list[float] = []
+    real_step = bs.step
+
+    def counted(state, *args):  # type: ignore[no-untyped-def]
+        searches.append(float(state.placement[2]))
+        return real_step(state, *args)
+
+    monkeypatch.setattr(bs, "step", counted)
+    names = ("wMA", "mPA", "wMB")
+    scores = bs.score_bodies({"wMA": [0.5]}, preprocess(mask, "xor"), placed, db, body, cam, FilterParams(), names)
+    assert len(searches) == 2 and searches[0] != searches[1]
+    assert scores["wMA"][0] == 0.5 and scores["wMA"][1] == scores["wMB"][0] != scores["mPA"][0]
+    assert all(np.isfinite(v).all() for v in scores.values())

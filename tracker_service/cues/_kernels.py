@@ -148,11 +148,13 @@ def feet_cost_kernel(su: NDArray[np.int64], sv: NDArray[np.int64], feet: NDArray
             d = min(np.sqrt(best), cap)
             fwd += d * d
         rev = 0.0
+        l_u, l_v, r_u, r_v = feet[i, 0, 0], feet[i, 0, 1], feet[i, 1, 0], feet[i, 1, 1]
         for p in range(n):
-            near = np.inf
-            for f in range(2):
-                du, dv = feet[i, f, 0] - su[p], feet[i, f, 1] - sv[p]
-                near = min(near, np.sqrt(du * du + dv * dv))
+            du, dv = l_u - su[p], l_v - sv[p]
+            eu, ev = r_u - su[p], r_v - sv[p]
+            # one root of the smaller square (a rounded root never reverses an order; fmin: a foot
+            # that is NaN is no nearer than the other)
+            near = np.sqrt(np.fmin(du * du + dv * dv, eu * eu + ev * ev))
             e = max(min(near, cap) - dead, 0.0)
             rev += e * e
         out[i] = forward * fwd + reverse * (rev / n)

@@ -250,7 +250,15 @@ def proposal_cost_kernel(joints: NDArray[np.float32], inv_var: NDArray[np.float6
     two_pi = 2.0 * np.pi
     for i in range(nl):
         h = float(heading[i])
-        d = np.fmod(h - centre + np.pi, two_pi)  # the angle between them, in [-pi, pi)
+        # the angle between them, in [-pi, pi): fmod(x, 2 pi), without its cost where x lies in
+        # [0, 4 pi) (headings in [-pi, pi]); x - 2 pi is exact there (Sterbenz), as fmod's remainder is
+        x = h - centre + np.pi
+        if 0.0 <= x < two_pi:
+            d = x
+        elif two_pi <= x < 2.0 * two_pi:
+            d = x - two_pi
+        else:
+            d = np.fmod(x, two_pi)
         if d < 0.0:
             d += two_pi
         d -= np.pi
@@ -259,7 +267,7 @@ def proposal_cost_kernel(joints: NDArray[np.float32], inv_var: NDArray[np.float6
             continue
         s = np.float32(0.0)
         for j in range(k):
-            x = joints[i, j]
-            s += x * (a[j] * x + b[j])
+            v = joints[i, j]
+            s += v * (a[j] * v + b[j])
         out[i] = s
     return out

@@ -208,9 +208,10 @@ def run_rectangles_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64]
                           ) -> tuple[NDArray[np.int16], NDArray[np.int64]]:
     """Merge each template's runs into rectangles: a run continues the rectangle of the row above
     when that row has a run with the same ``(x_start, x_end)``; every run lies in exactly one
-    rectangle, in the order the rectangles are started. Inputs and outputs as
-    :func:`tracker_service.silhouette.distance.run_rectangles` (which checks them)."""
-    out = np.empty((data.shape[0], 4), np.int16)
+    rectangle, in the order the rectangles are started. Inputs as
+    :func:`tracker_service.silhouette.distance.run_rectangles` (which checks them); the rectangles
+    come out column-wise, ``(4, Q)`` (the layout :func:`eval_rects_sat_kernel` reads)."""
+    out = np.empty((4, data.shape[0]), np.int16)
     rptr = np.zeros(ptr.shape[0], np.int64)
     most = 1  # a template's runs: a bound on one row's (the whole database's would take ~200 MB)
     for t in range(ptr.shape[0] - 1):
@@ -238,21 +239,21 @@ def run_rectangles_kernel(data: NDArray[np.int16], ptr: NDArray[np.int64]
             if y_prev == y - 1:
                 for i in range(n_prev):
                     j = prev[i]
-                    if j >= 0 and out[j, 2] == x0 and out[j, 3] == x1:
+                    if j >= 0 and out[2, j] == x0 and out[3, j] == x1:
                         k = j
                         prev[i] = -1  # one run per rectangle and row
                         break
             if k < 0:
                 k = q
-                out[q, 0] = y
-                out[q, 2] = x0
-                out[q, 3] = x1
+                out[0, q] = y
+                out[2, q] = x0
+                out[3, q] = x1
                 q += 1
-            out[k, 1] = y + 1
+            out[1, k] = y + 1
             cur[n_cur] = k
             n_cur += 1
         rptr[t + 1] = q
-    return out[:q].copy(), rptr
+    return out[:, :q].copy(), rptr
 
 
 @njit(cache=True, nogil=True)

@@ -128,7 +128,7 @@ class RunSet:
         """
         if self._rects is None:
             rects, ptr = run_rectangles(self.data, self.ptr)
-            self._rects = (np.ascontiguousarray(rects.T), ptr)
+            self._rects = (rects.T, ptr)  # the kernel's own (4, Q) array
         return self._rects
 
 
@@ -147,7 +147,8 @@ def run_rectangles(data: NDArray[np.int16], ptr: NDArray[np.int64]) -> tuple[NDA
     Returns
     -------
     rects : (Q, 4) int16
-        ``(y_start, y_end, x_start, x_end)``: rows ``[y_start, y_end)``, columns ``[x_start, x_end)``.
+        ``(y_start, y_end, x_start, x_end)``: rows ``[y_start, y_end)``, columns ``[x_start, x_end)``
+        (the transposed view of the kernel's column-wise ``(4, Q)`` array).
     rect_ptr : (T + 1,) int64
     """
     d = np.ascontiguousarray(data, np.int16)
@@ -157,7 +158,8 @@ def run_rectangles(data: NDArray[np.int16], ptr: NDArray[np.int64]) -> tuple[NDA
         raise ValueError(f"runs must be (R, 3) with a pointer array ending at R, got {d.shape} and {p.shape}")
     if len(d) and (int(d[:, 0].min()) < 0 or int(d[:, 0].max()) >= np.iinfo(np.int16).max):
         raise ValueError("run rows must be in [0, 32767) (a rectangle's end row is stored as int16)")
-    return run_rectangles_kernel(d, p)
+    cols, rptr = run_rectangles_kernel(d, p)
+    return cols.T, rptr
 
 
 def run_rectangles_reference(runs: NDArray[np.int16]) -> NDArray[np.int16]:

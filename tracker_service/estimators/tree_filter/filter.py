@@ -197,11 +197,13 @@ def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]]
                                  tuple[NDArray[np.float64], NDArray[np.float64], int]],
               offs: NDArray[np.float64], node_prior: NDArray[Any], n_best: int
               ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
-    """A level's placement grid in two passes (``FilterParams.screen``).
+    """A level's placement grid in two passes (``FilterParams.screen``), and each node's best cell.
 
     Every node is evaluated at the grid's centre cell (its predicted placement); the ``n_best``
-    nodes by posterior and the ``n_best`` by likelihood are then evaluated on the whole grid. Cells
-    not evaluated get an infinite cost.
+    nodes by posterior and the ``n_best`` by likelihood are then evaluated on the whole grid. A
+    node's best cell is the cheapest it was evaluated at (the first of equal ones in the order
+    hypothesis, then grid cell): what the arg-min over a full ``(n, H*G)`` table with infinite cost
+    in the cells not evaluated gives, without building that table.
 
     Parameters
     ----------
@@ -214,24 +216,28 @@ def _screened(neg_log: Callable[[NDArray[np.int64] | slice, NDArray[np.float64]]
 
     Returns
     -------
-    cost : (n, H*G) float64
-    places : (n, H*G, 3) float64
+    cost : (n,) float64
+        Each node's cost at its best cell.
+    place : (n, 3) float64
+        That cell's full-resolution placement.
     evaluations : int
     """
     g = len(offs)
     c = g // 2
     t0, p0, n0 = neg_log(slice(None), offs[c: c + 1])  # (n, H), (n, H, 3)
-    n, n_h = t0.shape
+    n = len(t0)
     lik = t0.min(axis=1)
     lp = np.log(np.maximum(node_prior, 1e-300)) - lik
     sel = np.union1d(_k_smallest(-lp, n_best), _k_smallest(lik, n_best))
     t_sel, p_sel, n1 = neg_log(sel, offs)
-    cost = np.full((n, n_h, g), np.inf)
-    places = np.repeat(p0[:, :, None, :], g, axis=2)
-    cost[:, :, c] = t0
-    cost[sel] = t_sel.reshape(len(sel), n_h, g)
-    places[sel] = p_sel.reshape(len(sel), n_h, g, 3)
-    return cost.reshape(n, -1), places.reshape(n, -1, 3), n0 + n1
+    rows = np.arange(n)
+    h0 = np.argmin(t0, axis=1)
+    cost, place = t0[rows, h0], p0[rows, h0]
+    r_sel = np.arange(len(sel))
+    b_sel = np.argmin(t_sel, axis=1)
+    cost[sel] = t_sel[r_sel, b_sel]
+    place[sel] = p_sel[r_sel, b_sel]
+    return cost, place, n0 + n1
 
 
 def mean_pose(poses: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -448,14 +454,14 @@ def _search(db: FilterDB, features: list[LevelFeatures], params: FilterParams, s
         neg_log = partial(_level_cost, db, features[lvl], lvl, nodes, centers, node_pred, params, motion_scale, skin)
         n_screen = params.screen[lvl] if lvl < len(params.screen) else 0
         if n_screen > 0 and len(offs) > 1 and len(nodes) > 2 * n_screen:
-            total, places, n_eval = _screened(neg_log, offs, node_prior, n_screen)
+            cost, node_place, n_eval = _screened(neg_log, offs, node_prior, n_screen)
         else:
             total, places, n_eval = neg_log(slice(None), offs)
+            best = np.argmin(total, axis=1)
+            rows = np.arange(len(nodes))
+            cost = total[rows, best]
+            node_place = places[rows, best]
         evals.append(n_eval)
-        best = np.argmin(total, axis=1)
-        rows = np.arange(len(nodes))
-        cost = total[rows, best]
-        node_place = places[rows, best]
         logpost = np.log(np.maximum(node_prior, 1e-300)) - cost  # eq. 1
         post = np.exp(logpost - logpost.max())
         post /= post.sum()

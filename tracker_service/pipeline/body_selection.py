@@ -19,15 +19,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body
+from protocol.skeleton import CAPSULE_INDEX, CAPSULES, JOINT_INDEX, Body, standing_pose
 from tracker_service.body.family import body_model, resized_model_body
+from tracker_service.body.kinematics import fk
 from tracker_service.camera import Camera
 from tracker_service.estimators.base import Observation
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.silhouette.features import LevelFeatures
 from tracker_service.silhouette.placement import scaled_placement
 
-__all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "measured_stature", "score_bodies"]
+__all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "head_missing", "measured_stature", "score_bodies",
+           "shoulder_top"]
 
 #: Statures a measured body may have (metres): a child of about five to a very tall adult.
 STATURE_RANGE_M = (1.05, 2.05)
@@ -35,6 +37,12 @@ STATURE_RANGE_M = (1.05, 2.05)
 #: broken silhouette cannot make a giant, and a man of 2 m keeps his stature (the family's tallest
 #: model is 1.80 m; at 0.10 a 2.02 m man was published 12 cm short and tracked 1.0 cm worse).
 SIZE_MARGIN_M = 0.25
+
+#: A silhouette whose top rows (this fraction of its height) are wider than ``HEADLESS_WIDTH`` of its
+#: height is topped by the shoulders, not a head: the head was lost to a background of its colour
+#: (skin before a pink wall). A head is 6-9 % of the height wide there, shoulders about 30 %.
+HEADLESS_BAND = 0.06
+HEADLESS_WIDTH = 0.18
 
 _HEAD_TOP = JOINT_INDEX["head_top"]
 _HAND_TIPS = np.array([JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]])
@@ -87,6 +95,37 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
     return out
 
 
+def head_missing(mask: NDArray[np.bool_]) -> bool:
+    """Whether the silhouette's top is the shoulders: its top :data:`HEADLESS_BAND` of rows hold a
+    row wider than :data:`HEADLESS_WIDTH` of its height (a head, or a raised hand, is narrower).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+
+    Returns
+    -------
+    bool
+        False for an empty silhouette.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return False
+    h = int(rows[-1] - rows[0] + 1)
+    band = mask[rows[0]: rows[0] + max(round(HEADLESS_BAND * h), 1)]
+    return bool(band.sum(axis=1).max() > HEADLESS_WIDTH * h)
+
+
+def shoulder_top(body: Body) -> float:
+    """The highest point of ``body`` standing, its head and neck apart (the top of the thorax and
+    shoulders), over its height: 0.86-0.88 for the family's models."""
+    j = fk(standing_pose(body), body)
+    r = body.capsule_radii
+    tops = [max(j[JOINT_INDEX[a], 1] + r[i, 0], j[JOINT_INDEX[b], 1] + r[i, 1])
+            for i, (_, part, a, b) in enumerate(CAPSULES) if part != "head"]
+    return float(max(tops) / body.height)
+
+
 def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], camera: Camera,
                      db_body: Body, joints: NDArray[np.floating[Any]] | None = None) -> float:
     """Standing height (metres) of the subject from the silhouette's vertical extent.
@@ -103,7 +142,9 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     reaches the silhouette's top row at the stature ``extent / (a + u z / f_y)`` (``u``: the top
     row's height above the principal point, pixels; perspective: a hand held toward the camera
     looks higher). The head (``a = 1``, ``z = 0``) gives the extent; the stature is the smallest
-    of the three, the one whose top the silhouette's is.
+    of the three, the one whose top the silhouette's is. A silhouette topped by the shoulders
+    (:func:`head_missing`: the head lost to a background of its colour) is the extent over
+    :func:`shoulder_top`.
 
     Parameters
     ----------
@@ -134,6 +175,8 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     floor_row = camera.cy + s * (float(camera.project(np.zeros(3))[1]) - camera.cy)
     top_row = ys[0] - 0.5
     extent = float((floor_row - top_row) * d / camera.fy)
+    if head_missing(mask):  # the top is the shoulders
+        return extent / shoulder_top(db_body)
     if joints is None:
         return extent
     j = np.asarray(joints, np.float64)

@@ -5,12 +5,19 @@ import numpy as np
 import pytest
 
 from protocol import fk
-from protocol.skeleton import JOINT_INDEX, ROT_SLOT, standing_pose
+from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, ROT_SLOT, standing_pose
 from tracker_service.body.family import body_model
 from tracker_service.body.raster import render_silhouette, silhouette_runs
 from tracker_service.camera import default_camera
 from tracker_service.cues.appearance import camera_joints
-from tracker_service.pipeline.body_selection import SIZE_MARGIN_M, STATURE_RANGE_M, BodyChoice, measured_stature
+from tracker_service.pipeline.body_selection import (
+    SIZE_MARGIN_M,
+    STATURE_RANGE_M,
+    BodyChoice,
+    head_missing,
+    measured_stature,
+    shoulder_top,
+)
 from tracker_service.silhouette.distance import RunSet, mask_to_runs, runs_to_mask
 from tracker_service.silhouette.placement import (
     feet_in_view,
@@ -114,6 +121,28 @@ def test_measured_stature_of_standing_bodies(spot: tuple[float, float]) -> None:
         # within a pixel of the head and feet rows at that distance (children's feet are shorter)
         tol = 0.03 * float(cam.depth(pose[:3])) / 3.0
         assert measured_stature(mask, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name
+
+
+def test_measured_stature_of_a_silhouette_that_lost_its_head() -> None:
+    """The head and neck lost to a background of their colour (skin before a pink wall): the top is
+    the shoulders, and the stature is measured from them; whole silhouettes are not taken for it."""
+    cam = default_camera()
+    db_body = body_model("mMA").body
+    for name in ("wSY", "mMA", "mTA", "cMA"):
+        b = body_model(name).body
+        pose = standing_pose(b)
+        joints = fk(pose, b)
+        whole = render_silhouette(joints, b.capsule_radii, cam)
+        radii = b.capsule_radii.copy()
+        radii[[CAPSULE_INDEX["neck"], CAPSULE_INDEX["skull"]]] = 0.0
+        headless = render_silhouette(joints, radii, cam)
+        obs = observed_placement(whole, cam)
+        assert obs is not None and not head_missing(whole) and head_missing(headless), name
+        tol = 0.03 * float(cam.depth(pose[:3])) / 3.0
+        assert measured_stature(whole, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name
+        assert measured_stature(headless, obs, cam, db_body) == pytest.approx(b.height, abs=2 * tol), name
+        assert 0.84 < shoulder_top(b) < 0.9
+    assert not head_missing(np.zeros((240, 320), bool))
 
 
 def _raised_left_arm(rotvec: np.ndarray, name: str) -> tuple[np.ndarray, float]:

@@ -19,17 +19,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.skeleton import CAPSULE_INDEX, CAPSULES, JOINT_INDEX, Body, standing_pose
+from protocol.skeleton import CAPSULE_INDEX, JOINT_INDEX, Body, standing_pose
 from tracker_service.body.family import body_model, resized_model_body
 from tracker_service.body.kinematics import fk
-from tracker_service.camera import Camera
+from tracker_service.body.raster import render_silhouette
+from tracker_service.camera import Camera, default_camera
 from tracker_service.estimators.base import Observation
 from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams, initial_state, step
 from tracker_service.silhouette.features import LevelFeatures
 from tracker_service.silhouette.placement import scaled_placement
 
 __all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "head_missing", "measured_stature", "score_bodies",
-           "shoulder_top"]
+           "shoulder_row", "shoulder_top"]
 
 #: Statures a measured body may have (metres): a child of about five to a very tall adult.
 STATURE_RANGE_M = (1.05, 2.05)
@@ -38,13 +39,16 @@ STATURE_RANGE_M = (1.05, 2.05)
 #: model is 1.80 m; at 0.10 a 2.02 m man was published 12 cm short and tracked 1.0 cm worse).
 SIZE_MARGIN_M = 0.25
 
-#: A silhouette whose top rows (this fraction of its height) are wider than ``HEADLESS_WIDTH`` of its
-#: height is topped by the shoulders, not a head: the head was lost to a background of its colour
-#: (skin before a pink wall). A head is 6-9 % of the height wide there, shoulders about 30 %.
-HEADLESS_BAND = 0.06
-HEADLESS_WIDTH = 0.18
+#: The shoulders: the first row of a silhouette (from its top) wider than this fraction of its
+#: height (a head is 6-10 % wide there, shoulders about 30 %).
+SHOULDER_WIDTH = 0.18
+#: A head and neck above the shoulders are at least this fraction of the silhouette's height (13-20 %
+#: standing; 10-16 % for a head that is there, on the family's models and the held-out takes'
+#: first frames). Less: the head was lost to a background of its colour (skin before a pink wall).
+HEAD_MIN = 0.10
 
 _HEAD_TOP = JOINT_INDEX["head_top"]
+_NECK = JOINT_INDEX["neck"]
 _HAND_TIPS = np.array([JOINT_INDEX["l_hand_tip"], JOINT_INDEX["r_hand_tip"]])
 _SKULL = CAPSULE_INDEX["skull"]
 _HANDS = np.array([CAPSULE_INDEX["l_hand"], CAPSULE_INDEX["r_hand"]])
@@ -95,9 +99,10 @@ def score_bodies(scores: dict[str, list[float]], features: list[LevelFeatures], 
     return out
 
 
-def head_missing(mask: NDArray[np.bool_]) -> bool:
-    """Whether the silhouette's top is the shoulders: its top :data:`HEADLESS_BAND` of rows hold a
-    row wider than :data:`HEADLESS_WIDTH` of its height (a head, or a raised hand, is narrower).
+def shoulder_row(mask: NDArray[np.bool_]) -> int | None:
+    """The silhouette's topmost row wider than :data:`SHOULDER_WIDTH` of its height, when less than
+    :data:`HEAD_MIN` of its height lies above it (the head is missing: that row is the shoulders'
+    top); None otherwise, and for an empty silhouette.
 
     Parameters
     ----------
@@ -105,25 +110,49 @@ def head_missing(mask: NDArray[np.bool_]) -> bool:
 
     Returns
     -------
-    bool
-        False for an empty silhouette.
+    int or None
     """
     rows = np.flatnonzero(mask.any(axis=1))
     if len(rows) == 0:
-        return False
+        return None
     h = int(rows[-1] - rows[0] + 1)
-    band = mask[rows[0]: rows[0] + max(round(HEADLESS_BAND * h), 1)]
-    return bool(band.sum(axis=1).max() > HEADLESS_WIDTH * h)
+    wide = np.flatnonzero(mask[rows[0]: rows[-1] + 1].sum(axis=1) > SHOULDER_WIDTH * h)
+    if len(wide) == 0 or wide[0] >= HEAD_MIN * h:
+        return None
+    return int(rows[0] + wide[0])
+
+
+def head_missing(mask: NDArray[np.bool_]) -> bool:
+    """Whether the silhouette is topped by the shoulders (:func:`shoulder_row`): its head was lost."""
+    return shoulder_row(mask) is not None
 
 
 def shoulder_top(body: Body) -> float:
-    """The highest point of ``body`` standing, its head and neck apart (the top of the thorax and
-    shoulders), over its height: 0.86-0.88 for the family's models."""
-    j = fk(standing_pose(body), body)
-    r = body.capsule_radii
-    tops = [max(j[JOINT_INDEX[a], 1] + r[i, 0], j[JOINT_INDEX[b], 1] + r[i, 1])
-            for i, (_, part, a, b) in enumerate(CAPSULES) if part != "head"]
-    return float(max(tops) / body.height)
+    """Where :func:`shoulder_row` finds the shoulders of ``body`` standing (its head and neck left
+    out of the silhouette), as a fraction of its stature: 0.83-0.86 for the family's models.
+    Measured on the body's own silhouette at the default camera, so the row and the fraction
+    agree however round the shoulders are."""
+    key = (body.name, float(body.height), np.asarray(body.capsule_radii, np.float64).tobytes())
+    if key not in _SHOULDER_TOPS:
+        _SHOULDER_TOPS[key] = _shoulder_top(body)
+    return _SHOULDER_TOPS[key]
+
+
+_SHOULDER_TOPS: dict[tuple[str, float, bytes], float] = {}  # per body (the database's: one entry)
+
+
+def _shoulder_top(body: Body) -> float:
+    cam = default_camera()
+    joints = fk(standing_pose(body), body)
+    radii = np.array(body.capsule_radii, np.float64)
+    radii[[CAPSULE_INDEX["neck"], _SKULL]] = 0.0
+    whole = render_silhouette(joints, body.capsule_radii, cam)
+    headless = render_silhouette(joints, radii, cam)
+    top, bottom = np.flatnonzero(whole.any(axis=1))[[0, -1]]
+    row = shoulder_row(headless)
+    if row is None:  # not a body the rule can read: its top as a whole
+        return 1.0
+    return float((bottom + 1 - row) / (bottom + 1 - top))
 
 
 def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], camera: Camera,
@@ -143,8 +172,8 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     row's height above the principal point, pixels; perspective: a hand held toward the camera
     looks higher). The head (``a = 1``, ``z = 0``) gives the extent; the stature is the smallest
     of the three, the one whose top the silhouette's is. A silhouette topped by the shoulders
-    (:func:`head_missing`: the head lost to a background of its colour) is the extent over
-    :func:`shoulder_top`.
+    (:func:`shoulder_row`: the head lost to a background of its colour, no hand read above the
+    neck) is the extent to the shoulders' row over :func:`shoulder_top`.
 
     Parameters
     ----------
@@ -175,14 +204,17 @@ def measured_stature(mask: NDArray[np.bool_], observed: NDArray[np.float64], cam
     floor_row = camera.cy + s * (float(camera.project(np.zeros(3))[1]) - camera.cy)
     top_row = ys[0] - 0.5
     extent = float((floor_row - top_row) * d / camera.fy)
-    if head_missing(mask):  # the top is the shoulders
-        return extent / shoulder_top(db_body)
-    if joints is None:
-        return extent
-    j = np.asarray(joints, np.float64)
-    if not np.isfinite(j).all():
+    j = None if joints is None else np.asarray(joints, np.float64)
+    if j is not None and not np.isfinite(j).all():
         return float("nan")
     r = db_body.capsule_radii[:, 1] / db_body.height
+    shoulders = shoulder_row(mask)
+    # a head lost to the background: the shoulders top the silhouette (unless the reading raises a
+    # hand above them, whose arm can make a narrow top short)
+    if shoulders is not None and (j is None or (j[_HAND_TIPS, 1] + r[_HANDS] < j[_NECK, 1]).all()):
+        return float((floor_row - (shoulders - 0.5)) * d / camera.fy) / shoulder_top(db_body)
+    if j is None:
+        return extent
     head = j[_HEAD_TOP, 1] + r[_SKULL]
     a = 1.0 + j[_HAND_TIPS, 1] + r[_HANDS] - head
     z = j[_HAND_TIPS, 2] - j[_HEAD_TOP, 2]

@@ -72,6 +72,7 @@ class _Page:
         self.images: dict[str, Any] = {}
         self.texts: dict[str, Any] = {}
         self.shown: dict[str, object] = {}  # node -> the message last drawn there (a new one redraws it)
+        self.pictures: dict[str, bytes] = {}  # node -> the camera picture last drawn there
         self.summary = server.gui.add_markdown("waiting for trackers, games and cloth clients ...")
 
     def _text(self, name: str, lines: list[str]) -> None:
@@ -88,6 +89,14 @@ class _Page:
         self.shown[node] = msg
         return True
 
+    def _new_picture(self, node: str, jpeg: bytes) -> bool:
+        """Whether the picture ``jpeg`` differs from what ``node`` shows (a repeated frame is not
+        sent to the browser again: it would redraw the image for nothing)."""
+        if self.pictures.get(node) == jpeg:
+            return False
+        self.pictures[node] = jpeg
+        return True
+
     def draw(self, state: LiveState) -> None:
         """Redraw what changed: a skeleton, camera frame or mesh only when its message is new."""
         now = time.monotonic()
@@ -99,7 +108,7 @@ class _Page:
                 joints = np.asarray(v.pose.joints, np.float32)
                 self.server.scene.add_point_cloud(f"/trackers/{sid}/joints", points=joints, colors=(255, 220, 90),
                                                   point_size=0.03)
-            if v.preview is not None and self._new(f"camera/{sid}", v.preview):
+            if v.preview is not None and self._new_picture(f"camera/{sid}", v.preview.jpeg):
                 bgr = cv2.imdecode(np.frombuffer(v.preview.jpeg, np.uint8), cv2.IMREAD_COLOR)
                 if bgr is not None:
                     rgb = np.ascontiguousarray(bgr[..., ::-1])

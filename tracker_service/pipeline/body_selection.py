@@ -29,7 +29,7 @@ from tracker_service.estimators.tree_filter.filter import FilterDB, FilterParams
 from tracker_service.silhouette.features import LevelFeatures
 from tracker_service.silhouette.placement import scaled_placement
 
-__all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "head_missing", "measured_stature", "score_bodies",
+__all__ = ["STATURE_RANGE_M", "BodyChoice", "candidates_near", "measured_stature", "score_bodies",
            "shoulder_row", "shoulder_top"]
 
 #: Statures a measured body may have (metres): a child of about five to a very tall adult.
@@ -120,11 +120,6 @@ def shoulder_row(mask: NDArray[np.bool_]) -> int | None:
     if len(wide) == 0 or wide[0] >= HEAD_MIN * h:
         return None
     return int(rows[0] + wide[0])
-
-
-def head_missing(mask: NDArray[np.bool_]) -> bool:
-    """Whether the silhouette is topped by the shoulders (:func:`shoulder_row`): its head was lost."""
-    return shoulder_row(mask) is not None
 
 
 def shoulder_top(body: Body) -> float:

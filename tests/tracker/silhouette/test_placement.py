@@ -14,8 +14,8 @@ from tracker_service.pipeline.body_selection import (
     SIZE_MARGIN_M,
     STATURE_RANGE_M,
     BodyChoice,
-    head_missing,
     measured_stature,
+    shoulder_row,
     shoulder_top,
 )
 from tracker_service.silhouette.distance import RunSet, mask_to_runs, runs_to_mask
@@ -139,14 +139,14 @@ def test_measured_stature_of_a_silhouette_that_lost_its_head() -> None:
         radii[CAPSULE_INDEX["neck"]] = 0.3 * b.capsule_radii[CAPSULE_INDEX["neck"]]
         scrap = render_silhouette(joints, radii, cam)  # a thin scrap of neck above the shoulders
         obs = observed_placement(whole, cam)
-        assert obs is not None and not head_missing(whole), name
-        assert head_missing(headless) and head_missing(scrap), name
+        assert obs is not None and shoulder_row(whole) is None, name
+        assert shoulder_row(headless) is not None and shoulder_row(scrap) is not None, name
         tol = 0.03 * float(cam.depth(pose[:3])) / 3.0
         assert measured_stature(whole, obs, cam, db_body) == pytest.approx(b.height, abs=tol), name
         for mask in (headless, scrap):
             assert measured_stature(mask, obs, cam, db_body) == pytest.approx(b.height, abs=2 * tol), name
         assert 0.8 < shoulder_top(b) < 0.9
-    assert not head_missing(np.zeros((240, 320), bool))
+    assert shoulder_row(np.zeros((240, 320), bool)) is None
 
 
 def _raised_left_arm(rotvec: np.ndarray, name: str) -> tuple[np.ndarray, float]:

@@ -3,6 +3,8 @@ in a real browser (Debian's headless Chromium), shows the skeleton and the track
 
 from __future__ import annotations
 
+import base64
+import json
 import shutil
 import subprocess
 import sys
@@ -101,8 +103,8 @@ def _browser() -> str:
     return exe
 
 
-def _page_shows(shot: Path) -> tuple[bool, str]:
-    img = cv2.imread(str(shot), cv2.IMREAD_COLOR)
+def _page_shows(png: bytes) -> tuple[bool, str]:
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
     if img is None:
         return False, "no screenshot"
     b, g, r = (img[..., k].astype(int) for k in range(3))
@@ -113,6 +115,55 @@ def _page_shows(shot: Path) -> tuple[bool, str]:
     return left > 30 and right > 30 and camera > 2000, found
 
 
+def _watch_page(browser: str, url: str, profile: Path, seconds: float) -> tuple[bool, str]:
+    """Open ``url`` in headless Chromium and screenshot it through the DevTools protocol every
+    half second until the page shows what :func:`_page_shows` wants or ``seconds`` pass.
+
+    A one-shot ``--screenshot`` with a virtual-time budget can fire before the page's websocket
+    has brought the panels (the websocket runs in real time, the budget in virtual time)."""
+    from websockets.sync.client import connect  # viser's own dependency
+
+    chrome = subprocess.Popen([browser, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                               "--enable-unsafe-swiftshader", "--window-size=1000,700", "--hide-scrollbars",
+                               f"--user-data-dir={profile}", "--remote-debugging-port=0", "--remote-allow-origins=*",
+                               url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    seen = (False, "the browser gave no screenshot")
+    try:
+        deadline = time.monotonic() + seconds
+        port_file = profile / "DevToolsActivePort"
+        while not port_file.exists() or not port_file.read_text().strip():
+            if time.monotonic() > deadline:
+                return False, "the browser opened no DevTools port"
+            time.sleep(0.1)
+        port = int(port_file.read_text().split()[0])
+        pages: list[dict[str, Any]] = []
+        while not pages and time.monotonic() < deadline:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/json", timeout=5) as reply:
+                pages = [t for t in json.load(reply) if t.get("type") == "page"]
+            time.sleep(0.1)
+        if not pages:
+            return False, "the browser showed no page"
+        with connect(pages[0]["webSocketDebuggerUrl"], max_size=None, open_timeout=10) as ws:
+            n = 0
+            while time.monotonic() < deadline:
+                n += 1
+                ws.send(json.dumps({"id": n, "method": "Page.captureScreenshot", "params": {"format": "png"}}))
+                while (reply := json.loads(ws.recv(timeout=20))).get("id") != n:
+                    pass
+                if "result" in reply:
+                    seen = _page_shows(base64.b64decode(reply["result"]["data"]))
+                    if seen[0]:
+                        break
+                time.sleep(0.5)
+    finally:
+        chrome.terminate()
+        try:
+            chrome.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            chrome.kill()
+    return seen
+
+
 def test_the_page_shows_the_skeleton_and_the_camera_frame_in_a_real_browser(tmp_path: Path) -> None:
     browser = _browser()
     ep = free_tcp_endpoint()
@@ -120,7 +171,6 @@ def test_the_page_shows_the_skeleton_and_the_camera_frame_in_a_real_browser(tmp_
     view = subprocess.Popen([sys.executable, "-m", "tracker_service.app.view", "--port", str(port), "--listen", ep,
                              "--mode", "peer", "--duration", "90", "-q"], cwd=REPO, stderr=subprocess.PIPE)
     stop = threading.Event()
-    shot = tmp_path / "page.png"
     seen = (False, "not tried")
     try:
         with open_session(build_config(mode="peer", connect=[ep], listen=[])) as session:
@@ -144,15 +194,7 @@ def test_the_page_shows_the_skeleton_and_the_camera_frame_in_a_real_browser(tmp_
                         break
                     except OSError:
                         time.sleep(0.2)
-                time.sleep(2.0)  # the viewer's session routes and first messages
-                for _ in range(3):
-                    subprocess.run([browser, "--headless=new", "--no-sandbox", "--disable-gpu",
-                                    "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--window-size=1000,700",
-                                    "--hide-scrollbars", "--virtual-time-budget=6000", f"--screenshot={shot}",
-                                    f"http://127.0.0.1:{port}/"], capture_output=True, timeout=60, check=False)
-                    seen = _page_shows(shot)
-                    if seen[0]:
-                        break
+                seen = _watch_page(browser, f"http://127.0.0.1:{port}/", tmp_path / "profile", 40.0)
             finally:
                 stop.set()
                 t.join(10)
@@ -182,4 +224,5 @@ def test_the_daemons_preview_is_the_overlay_as_a_jpeg_preview_frame() -> None:
     msg = decode_preview(preview_payload("cam0", 41, 1.5, frame, cam, res, 29.5) or b"")
     assert (msg.tracker_id, msg.seq, msg.capture_ts, msg.width, msg.height) == ("cam0", 41, 1.5, 320, 240)
     image = cv2.imdecode(np.frombuffer(msg.jpeg, np.uint8), cv2.IMREAD_COLOR)
+    assert image is not None
     assert image.shape == (240, 320, 3) and float(np.abs(image.astype(int) - 90).mean()) > 1.0  # drawn on

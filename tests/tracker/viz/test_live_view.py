@@ -115,6 +115,15 @@ def _page_shows(png: bytes) -> tuple[bool, str]:
     return left > 30 and right > 30 and camera > 2000, found
 
 
+def _stop(proc: subprocess.Popen[bytes], timeout: float) -> None:
+    """Terminate ``proc``; kill it if it has not ended within ``timeout`` seconds."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
 def _watch_page(browser: str, url: str, profile: Path, seconds: float) -> tuple[bool, str]:
     """Open ``url`` in headless Chromium and screenshot it through the DevTools protocol every
     half second until the page shows what :func:`_page_shows` wants or ``seconds`` pass.
@@ -156,11 +165,7 @@ def _watch_page(browser: str, url: str, profile: Path, seconds: float) -> tuple[
                         break
                 time.sleep(0.5)
     finally:
-        chrome.terminate()
-        try:
-            chrome.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            chrome.kill()
+        _stop(chrome, 10.0)
     return seen
 
 
@@ -200,11 +205,7 @@ def test_the_page_shows_the_skeleton_and_the_camera_frame_in_a_real_browser(tmp_
                 t.join(10)
                 undeclare_quietly(*pubs.values())
     finally:
-        view.terminate()
-        try:
-            view.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            view.kill()
+        _stop(view, 20.0)
     assert seen[0], seen[1]
 
 

@@ -16,7 +16,7 @@ from typing import Any
 
 from protocol.wire.keys import ALL_ALIVE, split_key
 
-__all__ = ["TrackerFollower", "ask_alive", "follow_step"]
+__all__ = ["TrackerFollower", "alive_keys", "follow_step"]
 
 log = logging.getLogger(__name__)
 
@@ -80,18 +80,22 @@ class TrackerFollower:
         return True
 
 
-def ask_alive(session: Any, follower: TrackerFollower, timeout: float = 0.5) -> bool:
-    """Ask the network which trackers are alive (a liveliness ``get``) and take every answer as a
-    ``PUT``; True when the followed tracker changed. For a client that follows nobody yet: a
-    liveliness subscriber's history can miss tokens while its first connection is being made."""
-    keys = [str(r.ok.key_expr) for r in session.liveliness().get(ALL_ALIVE, timeout=timeout) if r.ok is not None]
-    return follower.on_tokens([(k, True) for k in keys])
+def alive_keys(session: Any, timeout: float = 0.5) -> list[str]:
+    """Ask the network which trackers are alive (a liveliness ``get``): the key of every token
+    that answered within ``timeout`` seconds."""
+    return [str(r.ok.key_expr) for r in session.liveliness().get(ALL_ALIVE, timeout=timeout) if r.ok is not None]
 
 
 def follow_step(session: Any, live_sub: Any, follower: TrackerFollower, asked_at: float, now: float,
                 ask_every_s: float = 1.0) -> tuple[bool, float]:
     """One poll of a following client: take the liveliness samples waiting on ``live_sub`` and,
-    while nobody is followed, ask the network at most every ``ask_every_s`` seconds.
+    while nobody is followed, ask the network too.
+
+    While nobody is followed, the choice is never made from the subscriber's samples alone: its
+    history arrives as the connection forms and can bring the trackers already running one at a
+    time, so a client would follow whichever came first over the wire rather than the first by
+    id. Whenever samples arrive (or at most every ``ask_every_s`` seconds) the network is asked
+    (a liveliness ``get``, which waits for every answer) and its answers join the same batch.
 
     Returns
     -------
@@ -105,8 +109,8 @@ def follow_step(session: Any, live_sub: Any, follower: TrackerFollower, asked_at
     batch = []
     while (tok := live_sub.try_recv()) is not None:
         batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
-    changed = follower.on_tokens(batch) if batch else False
-    if follower.current is None and now - asked_at >= ask_every_s:
+    if follower.current is None and (batch or now - asked_at >= ask_every_s):
         asked_at = now
-        changed |= ask_alive(session, follower)
+        batch += [(k, True) for k in alive_keys(session)]
+    changed = follower.on_tokens(batch) if batch else False
     return changed, asked_at

@@ -29,6 +29,7 @@ class CrouchParams:
     crouch_max: float = 0.65
     hold_s: float = 0.05
     airborne_h: float = 0.05
+    airborne_pelvis: float = 0.03  # ... with the pelvis within this (x H) of its standing height: legs straight
     landing_s: float = 0.4
     occlusion_hold_s: float = 0.5
 
@@ -44,6 +45,7 @@ class CrouchDetector:
         self.state = "unknown"
         self.t_stand = self.t_cross = self.t_seen = self.t_air = -math.inf
         self.floor: float | None = None
+        self.stand_pelvis: float | None = None  # the pelvis's height above the floor standing (see update)
         self.low = math.inf
 
     def update(self, f: FrameFeatures) -> Candidate | None:
@@ -60,11 +62,20 @@ class CrouchDetector:
         else:  # the floor follows the lower ankle down quickly and up slowly (robust to one bad frame)
             tau = 0.15 if ankle_low_y < self.floor else 3.0
             self.floor += (1.0 - math.exp(-dt / tau)) * (ankle_low_y - self.floor)
-        if ankle_low_y - self.floor > p.airborne_h * f.height:
+        pelvis = f.pelvis_y - self.floor
+        # both feet off the floor is a jump only with the legs straight, the pelvis near its standing
+        # height (a tracker whose feet lift as the person squats would otherwise hide the crouch)
+        if ankle_low_y - self.floor > p.airborne_h * f.height and not (
+                self.stand_pelvis is not None and pelvis < self.stand_pelvis - p.airborne_pelvis * f.height):
             self.t_air = f.t
         c = f.crouch
         if c >= p.stand_min:
             self.state, self.t_stand = "standing", f.t
+            if not math.isnan(pelvis):  # follows a rise at once, a lower stance over a second or so
+                if self.stand_pelvis is None or pelvis > self.stand_pelvis:
+                    self.stand_pelvis = pelvis
+                else:
+                    self.stand_pelvis += (1.0 - math.exp(-dt / 1.0)) * (pelvis - self.stand_pelvis)
         elif self.state == "standing" and c <= p.crouch_max:
             self.state, self.t_cross, self.low = "crossing", f.t, c
         elif self.state == "crossing":

@@ -29,7 +29,8 @@ transform
     (``out <= 0.20``, ``-0.33 <= up <= -0.10``: not at the face) held 0.12 s also count.
 crouch (:mod:`game_client.body_detectors`)
     From standing (pelvis height over the lower ankle >= 0.88 leg lengths) down to <= 0.65 leg
-    lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing).
+    lengths held for 0.05 s, not within 0.4 s of both feet leaving the floor (a jump landing; feet
+    off the floor count only with the pelvis within 0.03 H of its standing height, legs straight).
     Ends when the ratio crosses 0.65.
 side_step (:mod:`game_client.body_detectors`)
     Within 2 s the pelvis moves >= 0.17 H along the body's left/right axis at >= 0.12 H/s on

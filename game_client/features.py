@@ -165,6 +165,8 @@ class FrameFeatures:
         The ankles are ``None`` unless ``legs_ok``.
     ankle_low_y : float
         World height of the lower ankle, metres (NaN unless ``legs_ok``); for jump detection.
+    pelvis_y : float
+        World height of the pelvis, metres (NaN unless ``legs_ok``); for jump detection.
     confidence : float
         The tracker's confidence in this frame, [0, 1].
     """
@@ -188,6 +190,7 @@ class FrameFeatures:
     ankle_l_xz: Vec2 | None = None
     ankle_r_xz: Vec2 | None = None
     ankle_low_y: float = math.nan
+    pelvis_y: float = math.nan
     confidence: float = 1.0
 
 
@@ -379,7 +382,7 @@ class FeatureExtractor:
             pelvis_xz=(pel[0], pel[2]),
             ankle_l_xz=(al[0], al[2]) if feet else None,
             ankle_r_xz=(ar[0], ar[2]) if feet else None,
-            ankle_low_y=low, confidence=float(confidence),
+            ankle_low_y=low, pelvis_y=pel[1] if feet else math.nan, confidence=float(confidence),
         )
 
     def run(self, times: NDArray[np.floating], joints: NDArray[np.floating],

@@ -12,6 +12,7 @@ from game_client.evaluation import Case, Score, degrade, match_events, occlude, 
 from game_client.gestures import Gesture, GestureRecognizer, RecognizerConfig, recognize
 from game_client.variants import Variant, load_labels, variant_labels, variant_motion
 from protocol.kinematics import fk
+from protocol.skeleton import JOINT_NAMES
 
 LABELS = load_labels()
 SINGLE = [n for n in LABELS if not n.startswith("round_")]
@@ -151,3 +152,33 @@ def test_case_tags_are_readable() -> None:
 def test_rejects_non_finite_time() -> None:
     with pytest.raises(ValueError, match="finite"):
         GestureRecognizer().update(float("nan"), np.zeros((24, 3)))
+
+
+def _crouch_descent() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The crouch script at 30 Hz: times, joints and the frames of its way down (pelvis between 0.9
+    and 0.7 of its standing height)."""
+    m = variant_motion("crouch", Variant(fps=30.0))
+    j = fk(m.poses, m.body)
+    pelvis = j[:, 0, 1]
+    down = np.flatnonzero((pelvis < 0.9 * pelvis[0]) & (pelvis > 0.7 * pelvis[0]))
+    return m.times, j, np.split(down, np.flatnonzero(np.diff(down) > 1) + 1)[0]  # the first way down
+
+
+def test_a_crouch_whose_tracked_feet_lift_is_still_a_crouch() -> None:
+    """A tracker lifted both feet 9 cm while the person squatted (seen from pixels, the pelvis 10 cm
+    down already): that is not a jump, so the landing rule must not hide the crouch."""
+    t, j, down = _crouch_descent()
+    feet = [i for i, n in enumerate(JOINT_NAMES) if n in ("l_ankle", "r_ankle", "l_toe", "r_toe")]
+    lifted = j.copy()
+    lifted[np.ix_(down, feet, [1])] += 0.09
+    assert [e.gesture for e in recognize(t, lifted)] == [Gesture.CROUCH]
+
+
+def test_a_crouch_on_landing_from_a_jump_is_not_one() -> None:
+    """The whole body 15 cm up (legs straight) until the way down starts: a jump's landing."""
+    t, j, down = _crouch_descent()
+    jump = j.copy()
+    flight = np.flatnonzero((t >= t[down[0]] - 0.3) & (t < t[down[0]]))
+    jump[flight, :, 1] += 0.15
+    assert recognize(t, jump) == []
+    assert [e.gesture for e in recognize(t, j)] == [Gesture.CROUCH]

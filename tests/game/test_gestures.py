@@ -168,9 +168,9 @@ def test_a_crouch_whose_tracked_feet_lift_is_still_a_crouch() -> None:
     """A tracker lifted both feet 9 cm while the person squatted (seen from pixels, the pelvis 10 cm
     down already): that is not a jump, so the landing rule must not hide the crouch."""
     t, j, down = _crouch_descent()
-    feet = [i for i, n in enumerate(JOINT_NAMES) if n in ("l_ankle", "r_ankle", "l_toe", "r_toe")]
+    feet = np.array([i for i, n in enumerate(JOINT_NAMES) if n in ("l_ankle", "r_ankle", "l_toe", "r_toe")])
     lifted = j.copy()
-    lifted[np.ix_(down, feet, [1])] += 0.09
+    lifted[np.ix_(down, feet, np.array([1]))] += 0.09
     assert [e.gesture for e in recognize(t, lifted)] == [Gesture.CROUCH]
 
 

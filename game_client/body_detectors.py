@@ -21,6 +21,15 @@ __all__ = ["CrouchDetector", "CrouchParams", "SideStepDetector", "SideStepParams
 log = logging.getLogger(__name__)
 
 
+def _follow(current: float | None, x: float, dt: float, tau_down: float, tau_up: float) -> float:
+    """``current`` moved toward ``x`` over ``dt`` seconds with time constant ``tau_down`` when ``x``
+    is below it and ``tau_up`` when above (0: at once); ``x`` itself when there is no ``current``."""
+    if current is None:
+        return x
+    tau = tau_down if x < current else tau_up
+    return x if tau <= 0.0 else current + (1.0 - math.exp(-dt / tau)) * (x - current)
+
+
 @dataclass(frozen=True)
 class CrouchParams:
     """Thresholds of the crouch (pelvis height above the lower ankle / leg length)."""
@@ -57,25 +66,19 @@ class CrouchDetector:
             return None
         dt = f.t - self.t_seen if self.t_seen > -math.inf else 0.0
         self.t_seen = f.t
-        if self.floor is None:
-            self.floor = ankle_low_y
-        else:  # the floor follows the lower ankle down quickly and up slowly (robust to one bad frame)
-            tau = 0.15 if ankle_low_y < self.floor else 3.0
-            self.floor += (1.0 - math.exp(-dt / tau)) * (ankle_low_y - self.floor)
+        # the floor follows the lower ankle down quickly and up slowly (robust to one bad frame)
+        self.floor = _follow(self.floor, ankle_low_y, dt, tau_down=0.15, tau_up=3.0)
         pelvis = f.pelvis_y - self.floor
         # both feet off the floor is a jump only with the legs straight, the pelvis near its standing
         # height (a tracker whose feet lift as the person squats would otherwise hide the crouch)
-        if ankle_low_y - self.floor > p.airborne_h * f.height and not (
-                self.stand_pelvis is not None and pelvis < self.stand_pelvis - p.airborne_pelvis * f.height):
+        legs_straight = self.stand_pelvis is None or pelvis >= self.stand_pelvis - p.airborne_pelvis * f.height
+        if ankle_low_y - self.floor > p.airborne_h * f.height and legs_straight:
             self.t_air = f.t
         c = f.crouch
         if c >= p.stand_min:
             self.state, self.t_stand = "standing", f.t
-            if not math.isnan(pelvis):  # follows a rise at once, a lower stance over a second or so
-                if self.stand_pelvis is None or pelvis > self.stand_pelvis:
-                    self.stand_pelvis = pelvis
-                else:
-                    self.stand_pelvis += (1.0 - math.exp(-dt / 1.0)) * (pelvis - self.stand_pelvis)
+            # the standing pelvis follows a rise at once, a lower stance over a second or so
+            self.stand_pelvis = _follow(self.stand_pelvis, pelvis, dt, tau_down=1.0, tau_up=0.0)
         elif self.state == "standing" and c <= p.crouch_max:
             self.state, self.t_cross, self.low = "crossing", f.t, c
         elif self.state == "crossing":

@@ -149,8 +149,10 @@ def main() -> int:
         "xor_shoes_publish_only": TrackerConfig(distance="xor", filter=FilterParams(shoe_weight=0.0)),
         "xor_map_pose": TrackerConfig(distance="xor", use_mean_pose=False),
         "xor_no_height_hypothesis": TrackerConfig(distance="xor", filter=FilterParams(height_hypothesis=False)),
-        # half as many likelihood-driven proposals as the default
+        # twice as many level-0 likelihood-driven proposals as the default
         "xor_proposals_48_96": TrackerConfig(distance="xor", filter=FilterParams(keep_likelihood=(48, 96))),
+        # the likelihood-driven proposals of the tracker before the appearance cue
+        "xor_proposals_96_192": TrackerConfig(distance="xor", filter=FilterParams(keep_likelihood=(96, 192))),
         # every node on its whole placement grid (no screening)
         "xor_exhaustive": TrackerConfig(distance="xor", filter=FilterParams(screen=())),
         # no selection: the person's own measurements given (the user enters them; --measurements)

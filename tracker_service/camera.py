@@ -47,6 +47,7 @@ __all__ = [
     "Camera",
     "CameraFileError",
     "default_camera",
+    "fit_box",
     "load_camera_file",
     "look_at",
     "placed_camera",
@@ -305,18 +306,15 @@ class Camera:
 
     def fitted(self, size: tuple[int, int]) -> Camera:
         """The camera of this camera's frames once brought to ``size`` = ``(width, height)`` by
-        :func:`tracker_service.sources.frame_source.fit_frame` (scaled to cover ``size`` without
-        changing the aspect, then the centre cropped). ``self`` when the size is already right."""
+        :func:`tracker_service.sources.frame_source.fit_frame` (the centre of the aspect of ``size``
+        cropped, :func:`fit_box`, then scaled to ``size``). ``self`` when the size is already right."""
         W, H = int(size[0]), int(size[1])
         if (W, H) == self.size:
             return self
-        w, h = self.width, self.height
-        s = max(W / w, H / h)
-        rw, rh = max(W, round(w * s)), max(H, round(h * s))
-        sx, sy = rw / w, rh / h  # what cv2.resize to (rw, rh) does to pixel centres, per axis
-        x0, y0 = (rw - W) // 2, (rh - H) // 2
+        x0, y0, cw, ch, _ = fit_box((self.width, self.height), (W, H))
+        sx, sy = W / cw, H / ch  # what cv2.resize of the crop to (W, H) does to pixel centres, per axis
         return replace(self, width=W, height=H, fx=self.fx * sx, fy=self.fy * sy,
-                       cx=(self.cx + 0.5) * sx - 0.5 - x0, cy=(self.cy + 0.5) * sy - 0.5 - y0)
+                       cx=(self.cx + 0.5 - x0) * sx - 0.5, cy=(self.cy + 0.5 - y0) * sy - 0.5)
 
     # ----------------------------------------------------------------------------- placement figures
     @property
@@ -443,6 +441,34 @@ class Camera:
         pose[:3, 3] = -rot.T @ t  # camera centre
         return cls(int(size[0]), int(size[1]), float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
                    pose=pose, dist=d5)
+
+
+def fit_box(frame_size: tuple[int, int], size: tuple[int, int]) -> tuple[int, int, int, int, int]:
+    """The part of a frame of ``frame_size`` = ``(w, h)`` that becomes a frame of ``size`` = ``(W, H)``
+    (:func:`tracker_service.sources.frame_source.fit_frame`): the centre with the aspect of ``size``
+    (a 16:9 frame loses its sides for a 4:3 size), trimmed to a multiple of the largest power of
+    two ``k`` by which it is at least ``size``, so that it can be halved exactly ``log2 k`` times
+    before the rest of the scaling (less than a factor of two).
+
+    Parameters
+    ----------
+    frame_size, size : (int, int)
+        ``(width, height)`` in pixels.
+
+    Returns
+    -------
+    x0, y0, cw, ch, k : int
+        The crop's top-left pixel and size; ``k`` a power of two (1: no halving).
+    """
+    w, h = int(frame_size[0]), int(frame_size[1])
+    W, H = int(size[0]), int(size[1])
+    s = max(W / w, H / h)  # the scale at which the frame covers ``size``
+    cw, ch = min(w, max(1, round(W / s))), min(h, max(1, round(H / s)))
+    k = 1
+    while cw >= 2 * k * W and ch >= 2 * k * H:
+        k *= 2
+    cw, ch = cw - cw % k, ch - ch % k
+    return (w - cw) // 2, (h - ch) // 2, cw, ch, k
 
 
 def default_camera(width: int = 320, height: int = 240, *, distance_m: float = DEFAULT_DISTANCE_M,

@@ -182,4 +182,4 @@ def test_fitted_camera_is_the_camera_of_fit_frame() -> None:
     yy, xx = np.mgrid[0:240, 0:320]
     centroid = np.array([(xx * small).sum(), (yy * small).sum()]) / small.sum()
     np.testing.assert_allclose(centroid, fitted.project(p), atol=0.05)
-    assert fitted.fx == pytest.approx(900.0 * 427 / 1280) and fitted.size == (320, 240)  # 1280 -> 427 px, cropped
+    assert fitted.fx == pytest.approx(900.0 / 3) and fitted.size == (320, 240)  # the centre 960 x 720, a third

@@ -186,8 +186,8 @@ def _scene_camera(working: Camera, options: EvalOptions) -> Camera | None:
 
 def widened(camera: Camera, size: tuple[int, int]) -> Camera:
     """A camera of ``size`` = ``(width, height)`` pixels whose frames, once brought to the working
-    size (:func:`~tracker_service.sources.frame_source.fit_frame`: scaled to cover it, the centre
-    cropped), are ``camera``'s: the same pose, the same vertical field of view when the frame is
+    size (:func:`~tracker_service.sources.frame_source.fit_frame`: the centre of the working aspect
+    cropped, then scaled), are ``camera``'s: the same pose, the same vertical field of view when the frame is
     wider than 4:3 (the horizontal one when it is taller), square pixels, the principal point at
     the centre (640x480: the same camera at twice the resolution; 1280x720: a wider lens)."""
     w, h = int(size[0]), int(size[1])

@@ -23,6 +23,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from tracker_service.camera import fit_box
+
 __all__ = ["FrameSource", "SourceError", "SourceSpec", "fit_frame", "open_source", "parse_source"]
 
 log = logging.getLogger(__name__)
@@ -90,9 +92,16 @@ def _as_bgr(img: Any, size: tuple[int, int] | None) -> NDArray[np.uint8] | None:
 
 
 def fit_frame(img: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:
-    """Bring a frame to the working size without changing its aspect: scale it so that it covers
-    ``size``, then crop the centre (a 16:9 frame loses its sides for a 4:3 working size). A
-    stretched frame would make every person wider or narrower than any template.
+    """Bring a frame to the working size without changing its aspect: crop the centre with the
+    aspect of ``size`` (a 16:9 frame loses its sides for a 4:3 working size), halve it by area
+    averaging while it stays at least ``size`` (:func:`~tracker_service.camera.fit_box`), then scale
+    the rest of the way bilinearly (less than a factor of two down, or up). A stretched frame would
+    make every person wider or narrower than any template.
+
+    Halving, not one area average by the whole factor, is for speed: OpenCV halves in one fast
+    pass, while its area average by any other factor takes a general path that cost 7 ms a frame at
+    1280x720 and 16 ms at 1920x1080 on one core (docs/BENCHMARKS.md, "Frame sizes"). The crop
+    first leaves the sides that are thrown away unread.
 
     Parameters
     ----------
@@ -103,17 +112,23 @@ def fit_frame(img: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8
     Returns
     -------
     (height, width, 3) uint8
-        The principal point stays at the centre and the pixels stay square; the vertical field of
-        view is kept when the input is wider than ``size``, the horizontal one when it is taller.
+        The principal point stays at the centre and the pixels stay square (to the crop's whole
+        pixels); the vertical field of view is kept when the input is wider than ``size``, the
+        horizontal one when it is taller. :meth:`~tracker_service.camera.Camera.fitted` is the
+        camera of the result.
     """
-    W, H = size
+    W, H = int(size[0]), int(size[1])
     h, w = img.shape[:2]
-    s = max(W / w, H / h)
-    rw, rh = max(W, round(w * s)), max(H, round(h * s))
-    interp = cv2.INTER_AREA if s < 1.0 else cv2.INTER_LINEAR
-    out = np.asarray(cv2.resize(img, (rw, rh), interpolation=interp), np.uint8)
-    x0, y0 = (rw - W) // 2, (rh - H) // 2
-    return out[y0:y0 + H, x0:x0 + W]
+    if (w, h) == (W, H):
+        return img
+    x0, y0, cw, ch, k = fit_box((w, h), (W, H))
+    out: Any = img[y0:y0 + ch, x0:x0 + cw]
+    while k > 1:
+        out = cv2.resize(out, (out.shape[1] // 2, out.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        k //= 2
+    if out.shape[1] != W or out.shape[0] != H:
+        out = cv2.resize(out, (W, H), interpolation=cv2.INTER_LINEAR)
+    return np.asarray(out, np.uint8)
 
 
 @dataclass

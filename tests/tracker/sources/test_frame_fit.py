@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tracker_service.camera import fit_box
 from tracker_service.sources.frame_source import fit_frame
 
 
@@ -60,3 +61,25 @@ def test_the_synthetic_source_films_with_the_camera_the_tracker_is_told_about() 
     expect = widened(cam.fitted((320, 240)), (1280, 720))
     assert wide is not None and wide.size == (1280, 720) and np.allclose(wide.K, expect.K)
     assert np.allclose(wide.pose, cam.pose)
+
+
+@pytest.mark.parametrize("size,box", [
+    ((640, 480), (0, 0, 640, 480, 2)),
+    ((1280, 720), (160, 0, 960, 720, 2)),
+    ((1920, 1080), (240, 0, 1440, 1080, 4)),
+    ((160, 90), (20, 0, 120, 90, 1)),
+])
+def test_the_crop_is_the_centre_with_the_working_aspect(size: tuple[int, int],
+                                                        box: tuple[int, int, int, int, int]) -> None:
+    x0, y0, cw, ch, k = fit_box(size, (320, 240))
+    assert (x0, y0, cw, ch, k) == box
+    assert cw % k == 0 and ch % k == 0 and cw * 3 == ch * 4  # halved exactly, 4:3
+
+
+def test_an_hd_frame_is_averaged_not_sampled() -> None:
+    """A fine pattern (one-pixel stripes) becomes its mean grey, as a lens would blur it, not stripes
+    of a sampling's beat: the halvings average every pixel of the crop."""
+    img = np.zeros((1080, 1920, 3), np.uint8)
+    img[:, ::2] = 200
+    out = fit_frame(img, (320, 240)).astype(np.float64)
+    assert abs(out.mean() - 100.0) < 1.0 and out.std() < 3.0

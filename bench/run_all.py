@@ -18,6 +18,7 @@ BENCHES = {
     "bench_cloth.py": [],
     "bench_tracker.py": ["--takes", "4", "--frames", "90"],
     "bench_preview.py": [],
+    "bench_frame_fit.py": [],
 }
 
 

@@ -99,9 +99,9 @@ def fit_frame(img: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8
     make every person wider or narrower than any template.
 
     Halving, not one area average by the whole factor, is for speed: OpenCV halves in one fast
-    pass, while its area average by any other factor takes a general path that cost 7 ms a frame at
-    1280x720 and 16 ms at 1920x1080 on one core (docs/BENCHMARKS.md, "Frame sizes"). The crop
-    first leaves the sides that are thrown away unread.
+    pass, while its area average by any other factor takes a general path that cost 5-7 ms a frame
+    at 1280x720 and 10-16 ms at 1920x1080 on one core, 0.6 and 1.0 ms this way (docs/BENCHMARKS.md,
+    "Frame sizes"). The crop first leaves the sides that are thrown away unread.
 
     Parameters
     ----------

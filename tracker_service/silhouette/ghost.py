@@ -202,16 +202,17 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
     outline_full = m > cv2.erode(m, _K3, borderType=cv2.BORDER_REPLICATE)
     if int(np.count_nonzero(outline_full)) < params.min_outline:
         return 0.0
-    ys, xs = np.nonzero(outline_full)
+    bx, by, bw, bh = cv2.boundingRect(outline_full.view(np.uint8))  # the outline's box (np.nonzero: 4x slower)
     frame_blur = float(np.hypot(params.image_sigma, frame_sigma))
     pad = int(np.ceil(3 * max(frame_blur, params.mask_sigma))) + 2
-    y0, x0 = max(int(ys.min()) - pad, 0), max(int(xs.min()) - pad, 0)
-    y1, x1 = int(ys.max()) + pad + 1, int(xs.max()) + pad + 1
+    y0, x0 = max(by - pad, 0), max(bx - pad, 0)
+    y1, x1 = by + bh + pad, bx + bw + pad
     outline = outline_full[y0:y1, x0:x1]
     mx, my = _gradient(m[y0:y1, x0:x1].astype(np.float32), params.mask_sigma)
     norm = np.hypot(mx[outline], my[outline]) + np.float32(1e-9)
     nx, ny = (mx[outline] / norm).astype(np.float32), (my[outline] / norm).astype(np.float32)
-    cur = np.ascontiguousarray(np.asarray(frame[y0:y1, x0:x1], np.float32).mean(axis=2))
+    crop = np.asarray(frame[y0:y1, x0:x1], np.float32)
+    cur = (crop[..., 0] + crop[..., 1] + crop[..., 2]) / np.float32(3.0)  # mean(axis=2)'s sums, 3x faster
     then = np.ascontiguousarray(background_bright[y0:y1, x0:x1], np.float32)
     e_now = across_minus_along(cur, outline, nx, ny, frame_blur)
     e_then = across_minus_along(then, outline, nx, ny, params.image_sigma)
@@ -230,7 +231,7 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
             hull = _hull(outline, persony)
             away = ghosty & ~_within(hull, outline, 2)
             if params.notch_margin > 0 and away.any():
-                height = int(ys.max()) - int(ys.min()) + 1
+                height = bh
                 notch = _short_runs(m[y0:y1, x0:x1], outline, persony, params.notch_run * height)
                 near = _within(hull, outline, max(2, round(params.notch_margin * height)))
                 away &= ~(notch & near)

@@ -45,7 +45,8 @@ def one_resize(img: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint
     return np.asarray(out[y0:y0 + H, x0:x0 + W], np.uint8)
 
 
-def _best_ms(f: Any, img: NDArray[np.uint8], calls: int = 20) -> float:
+def _ms_per_call(f: Any, img: NDArray[np.uint8], calls: int = 20) -> float:
+    """Mean milliseconds of ``calls`` calls of ``f`` on ``img`` (one round)."""
     t = time.perf_counter()
     for _ in range(calls):
         f(img, WORKING)
@@ -63,11 +64,12 @@ def main() -> int:
     rows = []
     for w, h in SIZES:
         img = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
-        fit_frame(img, WORKING), one_resize(img, WORKING)  # first calls apart
+        fit_frame(img, WORKING)  # first calls apart
+        one_resize(img, WORKING)
         new, old = [], []
         for _ in range(args.repeats):  # alternated, so the machine's load falls on both alike
-            new.append(_best_ms(fit_frame, img))
-            old.append(_best_ms(one_resize, img))
+            new.append(_ms_per_call(fit_frame, img))
+            old.append(_ms_per_call(one_resize, img))
         rows.append({"input": f"{w}x{h}", "fit_frame_ms": round(min(new), 3), "one_resize_ms": round(min(old), 3),
                      "speed_up": round(min(old) / min(new), 2)})
     out = {"meta": bench_meta("bench_frame_fit.py", t0, opencv=cv2.__version__), "rows": rows}

@@ -202,7 +202,7 @@ def ghost_fraction(background_bright: NDArray[np.floating], frame: NDArray[np.ui
     outline_full = m > cv2.erode(m, _K3, borderType=cv2.BORDER_REPLICATE)
     if int(np.count_nonzero(outline_full)) < params.min_outline:
         return 0.0
-    bx, by, bw, bh = cv2.boundingRect(outline_full.view(np.uint8))  # the outline's box (np.nonzero: 4x slower)
+    bx, by, bw, bh = cv2.boundingRect(outline_full.view(np.uint8))  # the outline's box, without index arrays
     frame_blur = float(np.hypot(params.image_sigma, frame_sigma))
     pad = int(np.ceil(3 * max(frame_blur, params.mask_sigma))) + 2
     y0, x0 = max(by - pad, 0), max(bx - pad, 0)

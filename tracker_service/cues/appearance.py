@@ -42,6 +42,7 @@ from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 from tracker_service.camera import Camera
 from tracker_service.cues._kernels import proposal_cost_kernel
 from tracker_service.cues.appearance_engine import AppearanceEngine
+from tracker_service.cues.level_frame import level_to_camera, rotate_reading, upright_angle
 from tracker_service.paths import out_dir
 
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
@@ -59,25 +60,28 @@ _REBUILD = "rebuild it with: mocap-tracker train-appearance --out {path}"
 LOG_VAR_RANGE = (-12.0, 4.0)
 
 
-#: The camera placements the network was trained on: the default camera's height (1.2 m), level,
-#: no roll; distance and lens are free (the crop normalises the person's size). Beyond these it
-#: reads a person seen from above or below as leaning: a camera 1.8 m high tilted 15 deg down gave
-#: 10.2 cm with the cue, 3.9 cm without, on the same frames.
-TRAINED_HEIGHT_M = (0.95, 1.45)
-TRAINED_TILT_DEG = 3.0
-TRAINED_ROLL_DEG = 3.0
+#: The camera placements the network reads well: the range measured. It was trained at the default
+#: camera's (1.2 m high, level, no roll; distance and lens are free: the crop normalises the
+#: person's size) and reads the body in a level camera's axes; :mod:`tracker_service.cues.level_frame`
+#: turns its crop upright and its reading into a tilted or rolled camera's axes. Within these it
+#: was measured 1.6-3.5 cm better than the silhouettes alone (docs/BENCHMARKS.md, "Camera
+#: placements"); beyond them the cue is turned off.
+FIT_HEIGHT_M = (0.6, 1.8)
+FIT_TILT_DEG = 20.0
+FIT_ROLL_DEG = 10.0
 
 
 def appearance_unfit(camera: Camera) -> str | None:
-    """Why the network should not read frames of ``camera`` (None: it was trained for such a
-    placement, :data:`TRAINED_HEIGHT_M`, :data:`TRAINED_TILT_DEG`, :data:`TRAINED_ROLL_DEG`)."""
-    h, tilt, roll = camera.height_m, camera.tilt_deg, camera.roll_deg
-    if not TRAINED_HEIGHT_M[0] <= h <= TRAINED_HEIGHT_M[1]:
-        return f"the camera is {h:.2f} m high (trained: {TRAINED_HEIGHT_M[0]}-{TRAINED_HEIGHT_M[1]} m)"
-    if abs(tilt) > TRAINED_TILT_DEG:
-        return f"the camera is tilted {tilt:+.1f} deg (trained: level, within {TRAINED_TILT_DEG:g} deg)"
-    if abs(roll) > TRAINED_ROLL_DEG:
-        return f"the camera is rolled {roll:+.1f} deg (trained: within {TRAINED_ROLL_DEG:g} deg)"
+    """Why the network should not read frames of ``camera`` (None: a placement it reads well,
+    :data:`FIT_HEIGHT_M`, :data:`FIT_TILT_DEG`, :data:`FIT_ROLL_DEG`)."""
+    # rounded (to a millimetre, a hundredth of a degree): a camera placed at a limit is within it
+    h, tilt, roll = round(camera.height_m, 3), round(camera.tilt_deg, 2), round(camera.roll_deg, 2)
+    if not FIT_HEIGHT_M[0] <= h <= FIT_HEIGHT_M[1]:
+        return f"the camera is {h:.2f} m high (measured: {FIT_HEIGHT_M[0]}-{FIT_HEIGHT_M[1]} m)"
+    if abs(tilt) > FIT_TILT_DEG:
+        return f"the camera is tilted {tilt:+.1f} deg (measured: within {FIT_TILT_DEG:g} deg)"
+    if abs(roll) > FIT_ROLL_DEG:
+        return f"the camera is rolled {roll:+.1f} deg (trained: within {FIT_ROLL_DEG:g} deg)"
     return None
 
 
@@ -200,7 +204,7 @@ def ensemble(nets: Sequence[AppearanceNet]) -> AppearanceNet:
     return AppearanceNet(first.size, layers[0], {"members": metas}, tuple(layers[1:]))
 
 
-def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int
+def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int, camera: Camera | None = None
                 ) -> tuple[NDArray[np.uint8], NDArray[np.bool_]] | None:
     """The person's square crop at the network's input size.
 
@@ -211,6 +215,11 @@ def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int
     mask : (H, W) bool
         The silhouette.
     size : int
+    camera : Camera, optional
+        The camera of ``frame``: when it is tilted or rolled, the crop is turned so that the
+        world's up at the silhouette's centre points up in it, as in every training view
+        (:func:`tracker_service.cues.level_frame.upright_angle`); a level camera's crop is the
+        plain one.
 
     Returns
     -------
@@ -223,9 +232,19 @@ def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int
         return None
     cols = np.flatnonzero(mask.any(axis=0))
     y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    side = CROP_MARGIN * max(y1 - y0, x1 - x0)
-    k = size / side
-    m = np.array([[k, 0.0, size / 2 - 0.5 * (x0 + x1) * k], [0.0, k, size / 2 - 0.5 * (y0 + y1) * k]])
+    angle = 0.0 if camera is None else upright_angle(camera, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    if angle == 0.0:
+        side = CROP_MARGIN * max(y1 - y0, x1 - x0)
+        k = size / side
+        m = np.array([[k, 0.0, size / 2 - 0.5 * (x0 + x1) * k], [0.0, k, size / 2 - 0.5 * (y0 + y1) * k]])
+    else:  # the silhouette's box in the turned image (cv2.getRotationMatrix2D's sense: counter-clockwise)
+        c, s = np.cos(np.radians(angle)), np.sin(np.radians(angle))
+        turn = np.array([[c, s], [-s, c]])
+        v, u = np.nonzero(mask[y0:y1, x0:x1])
+        q = np.stack([u + float(x0), v + float(y0)], axis=1) @ turn.T
+        lo, hi = q.min(axis=0), q.max(axis=0) + 1.0
+        k = size / (CROP_MARGIN * float(max(hi - lo)))
+        m = np.hstack([k * turn, (size / 2 - k * 0.5 * (lo + hi))[:, None]])
     # (warpAffine samples bilinearly whatever the flag says: INTER_AREA exists only in resize. The
     # networks were trained on exactly this crop; changing it needs a retrained network.)
     crop = np.asarray(cv2.warpAffine(frame, m, (size, size), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_REPLICATE),
@@ -308,8 +327,8 @@ def forward(net: AppearanceNet, x: NDArray[np.float32], member: int = 0) -> NDAr
     return h[0] if single else h
 
 
-def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[np.bool_], mirror: bool = False
-                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[np.bool_], mirror: bool = False,
+                   camera: Camera | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """The joints' positions relative to the pelvis, camera axes, in units of the person's height.
 
     Parameters
@@ -323,6 +342,11 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         widened by their disagreement (one view alone when the other's output is not finite).
         An ensemble (``net.members``) reads every view with every network and pools all readings
         the same way (:func:`pool_readings`).
+    camera : Camera, optional
+        The camera of ``frame``. The network reads the body in a level camera's axes: for a tilted
+        or rolled camera the crop is turned upright (:func:`person_crop`) and the reading turned
+        into the camera's axes (:func:`tracker_service.cues.level_frame.level_to_camera`); None,
+        or a level camera: the reading as it is.
 
     Returns
     -------
@@ -331,7 +355,7 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         The network's variance of each coordinate.
     None when the mask is empty or the network's output is not finite.
     """
-    c = person_crop(frame, mask, net.size)
+    c = person_crop(frame, mask, net.size, camera)
     if c is None:
         return None
     x = net_input(*c)
@@ -342,7 +366,9 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         readings.append(_read(out[0]))
         if mirror and (flipped := _read(out[1])) is not None:
             readings.append((flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]))
-    return pool_readings(readings)
+    pooled = pool_readings(readings)
+    rotation = None if camera is None else level_to_camera(camera)
+    return pooled if pooled is None or rotation is None else rotate_reading(*pooled, rotation)
 
 
 def pool_readings(readings: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]] | None]

@@ -161,7 +161,7 @@ def observe(frame: NDArray[np.uint8], mask: NDArray[np.bool_], fstate: object, d
     # frames measured worse on all three subjects, docs/TRACKER.md)
     in_filter = config.filter.appearance_weight > 0 and len(db.leaf_joints3d) > 0
     if config.appearance is not None and (in_filter or config.refine is not None or config.proportions is not None):
-        seen = predict_joints(config.appearance, frame, mask, config.appearance_mirror)
+        seen = predict_joints(config.appearance, frame, mask, config.appearance_mirror, camera)
         if seen is not None and in_filter:
             mu, var = seen
             coords = config.filter.appearance_coords

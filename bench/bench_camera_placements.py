@@ -3,7 +3,7 @@
 Held-out takes filmed by a camera of another height, tilt, lens or distance, the tracker told that
 camera (``mocap-tracker eval --camera FILE``'s path, the file written to ``--out``: templates
 rendered for it, built once per camera and cached in ``out/db``). Each placement is tracked with the
-shipped network (its reading turned into the camera's axes, :mod:`tracker_service.cues.level_frame`)
+shipped network (its reading turned into the camera's axes, :mod:`tracker_service.cues.view_frame`)
 and with the silhouettes alone (``--appearance off``); the default camera is the reference.
 
     .venv/bin/python bench/bench_camera_placements.py --takes 6 --seed 7 --frames 90
@@ -36,40 +36,47 @@ from tracker_service.camera import Camera, placed_camera, save_camera_file
 from tracker_service.cues.appearance import appearance_unfit
 
 ROOT = Path(__file__).resolve().parent.parent
-Placement = tuple[float, float, float | None, float, float]
-#: (height m, tilt deg down, horizontal field of view deg or None, distance m, roll deg) of the
-#: placements measured; the first is the default camera.
+Placement = tuple[float, float, float | None, float, float, float]
+#: (height m, tilt deg down, horizontal field of view deg or None, distance m, roll deg, yaw deg) of
+#: the placements measured; the first is the default camera. A yaw turns the camera away from the
+#: person about the vertical: they stand that far right of the image's centre.
 PLACEMENTS: list[Placement] = [
-    (1.2, 0.0, None, 3.0, 0.0), (1.8, 15.0, None, 3.0, 0.0), (0.8, -5.0, None, 3.0, 0.0), (0.6, -10.0, None, 3.0, 0.0),
-    (1.8, 20.0, 80.0, 2.5, 0.0), (1.2, 0.0, None, 3.0, 10.0), (1.5, 10.0, None, 3.0, 8.0)]
+    (1.2, 0.0, None, 3.0, 0.0, 0.0), (1.8, 15.0, None, 3.0, 0.0, 0.0), (0.8, -5.0, None, 3.0, 0.0, 0.0),
+    (0.6, -10.0, None, 3.0, 0.0, 0.0), (1.8, 20.0, 80.0, 2.5, 0.0, 0.0), (1.2, 0.0, None, 3.0, 10.0, 0.0),
+    (1.5, 10.0, None, 3.0, 8.0, 0.0), (1.2, 0.0, None, 3.0, 0.0, 15.0)]
 
 
-def _label(height: float, tilt: float, fov: float | None, dist: float, roll: float) -> str:
+def _label(height: float, tilt: float, fov: float | None, dist: float, roll: float, yaw: float) -> str:
     turn = "level" if tilt == 0 else (f"{tilt:g} deg down" if tilt > 0 else f"{-tilt:g} deg up")
     return (f"{height:g} m, {turn}" + (f", rolled {roll:g} deg" if roll else "")
+            + (f", the person {yaw:g} deg right of centre" if yaw else "")
             + (f", {fov:g} deg lens at {dist:g} m" if fov else ""))
 
 
-def _camera(height: float, tilt: float, fov: float | None, dist: float, roll: float) -> Camera:
-    """:func:`placed_camera`, turned by ``roll`` degrees about its optical axis."""
+def _camera(height: float, tilt: float, fov: float | None, dist: float, roll: float, yaw: float) -> Camera:
+    """:func:`placed_camera`, turned by ``roll`` degrees about its optical axis and then by ``yaw``
+    about the vertical through its centre."""
     cam = placed_camera(height_m=height, tilt_deg=tilt, hfov_deg=fov, distance_m=dist)
-    a = math.radians(roll)
+    a, b = math.radians(roll), math.radians(yaw)
     turn = np.eye(4)
     turn[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
-    return cam.moved(cam.pose @ turn)
+    pose = cam.pose @ turn
+    pose[:3, :3] = np.array([[math.cos(b), 0.0, math.sin(b)], [0.0, 1.0, 0.0],
+                             [-math.sin(b), 0.0, math.cos(b)]]) @ pose[:3, :3]
+    return cam.moved(pose)
 
 
 def _run(placement: Placement, takes: list[Any], seed: int, frames: int, out: Path) -> dict[str, Any]:
-    height, tilt, fov, dist, roll = placement
+    height, tilt, fov, dist, roll, yaw = placement
     base = TrackerOptions()
     if placement != PLACEMENTS[0]:
-        path = out / f"camera_{height:g}m_{tilt:g}deg_{fov or 0:g}_{dist:g}m_{roll:g}roll.json"
+        path = out / f"camera_{height:g}m_{tilt:g}deg_{fov or 0:g}_{dist:g}m_{roll:g}roll_{yaw:g}yaw.json"
         save_camera_file(_camera(*placement), path)
         base = TrackerOptions(camera_file=str(path))
     camera = requested_camera(base)
     loaded = ensure_db(None) if camera is None else ensure_db(None, camera=camera)
     row: dict[str, Any] = {"placement": _label(*placement), "height_m": height, "tilt_deg": tilt,
-                           "fov_deg": fov, "distance_m": dist, "roll_deg": roll,
+                           "fov_deg": fov, "distance_m": dist, "roll_deg": roll, "yaw_deg": yaw,
                            "cue_unfit": appearance_unfit(loaded.camera), "takes": {}}
     configs = {"cue": tracker_config(base), "silhouettes": tracker_config(replace(base, appearance="off"))}
     for name, cfg in configs.items():

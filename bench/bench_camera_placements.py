@@ -3,7 +3,7 @@
 Held-out takes filmed by a camera of another height, tilt, lens or distance, the tracker told that
 camera (``mocap-tracker eval --camera FILE``'s path, the file written to ``--out``: templates
 rendered for it, built once per camera and cached in ``out/db``). Each placement is tracked with the
-shipped network (its reading turned into the camera's axes, :mod:`tracker_service.cues.view_frame`)
+shipped network (its reading turned into the camera's axes, :mod:`tracker_service.cues.level_frame`)
 and with the silhouettes alone (``--appearance off``); the default camera is the reference.
 
     .venv/bin/python bench/bench_camera_placements.py --takes 6 --seed 7 --frames 90

@@ -42,14 +42,13 @@ from protocol.skeleton import MIRROR_JOINTS, N_JOINTS
 from tracker_service.camera import Camera
 from tracker_service.cues._kernels import proposal_cost_kernel
 from tracker_service.cues.appearance_engine import AppearanceEngine
-from tracker_service.cues.view_frame import rotate_reading, upright_angle, view_to_camera
+from tracker_service.cues.level_frame import level_to_camera, rotate_reading, upright_angle
 from tracker_service.paths import out_dir
 
 __all__ = ["APPEARANCE_FORMAT", "APPEARANCE_VERSION", "AppearanceError", "AppearanceNet", "HeadingWindow",
            "Layer", "camera_joints", "default_appearance_path", "ensemble", "forward", "in_view", "joints_cost",
            "load_appearance", "net_input", "person_crop", "pool_readings", "predict_joints", "propose_leaves",
-           "propose_leaves_in_window", "save_appearance", "shipped_appearance_path", "silhouette_box",
-           "silhouette_median"]
+           "propose_leaves_in_window", "save_appearance", "shipped_appearance_path"]
 
 APPEARANCE_FORMAT = "mocap-appearance-net"
 #: Bump on any change of the input, the output or the layers' meaning.
@@ -63,7 +62,7 @@ LOG_VAR_RANGE = (-12.0, 4.0)
 
 #: The camera placements the network reads well: the range measured. It was trained at the default
 #: camera's (1.2 m high, level, no roll; distance and lens are free: the crop normalises the
-#: person's size) and reads the body in a level camera's axes; :mod:`tracker_service.cues.view_frame`
+#: person's size) and reads the body in a level camera's axes; :mod:`tracker_service.cues.level_frame`
 #: turns its crop upright and its reading into a tilted or rolled camera's axes. Within these it
 #: was measured 1.6-3.5 cm better than the silhouettes alone (docs/BENCHMARKS.md, "Camera
 #: placements"); beyond them the cue is turned off.
@@ -205,39 +204,8 @@ def ensemble(nets: Sequence[AppearanceNet]) -> AppearanceNet:
     return AppearanceNet(first.size, layers[0], {"members": metas}, tuple(layers[1:]))
 
 
-def silhouette_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int] | None:
-    """The silhouette's bounding box ``(x0, x1, y0, y1)`` (ends exclusive), None when it is empty.
-
-    Parameters
-    ----------
-    mask : (H, W) bool
-    """
-    rows = np.flatnonzero(mask.any(axis=1))
-    if not len(rows):
-        return None
-    cols = np.flatnonzero(mask.any(axis=0))
-    return int(cols[0]), int(cols[-1]) + 1, int(rows[0]), int(rows[-1]) + 1
-
-
-def silhouette_median(mask: NDArray[np.bool_], box: tuple[int, int, int, int]) -> tuple[float, float]:
-    """The silhouette's median column and row ``(u, v)``, pixels: where the body is, little moved by
-    an arm held out to one side (which moves its box's centre by up to a fifth of the box).
-
-    Parameters
-    ----------
-    mask : (H, W) bool
-        Not empty.
-    box : (x0, x1, y0, y1)
-        :func:`silhouette_box` of ``mask``.
-    """
-    x0, x1, y0, y1 = box
-    sub = mask[y0:y1, x0:x1]
-    cols, rows = np.cumsum(sub.sum(axis=0)), np.cumsum(sub.sum(axis=1))
-    return float(x0 + np.searchsorted(cols, 0.5 * cols[-1])), float(y0 + np.searchsorted(rows, 0.5 * rows[-1]))
-
-
-def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int, camera: Camera | None = None,
-                box: tuple[int, int, int, int] | None = None) -> tuple[NDArray[np.uint8], NDArray[np.bool_]] | None:
+def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int, camera: Camera | None = None
+                ) -> tuple[NDArray[np.uint8], NDArray[np.bool_]] | None:
     """The person's square crop at the network's input size.
 
     Parameters
@@ -250,10 +218,8 @@ def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int, ca
     camera : Camera, optional
         The camera of ``frame``: when it is tilted or rolled, the crop is turned so that the
         world's up at the silhouette's centre points up in it, as in every training view
-        (:func:`tracker_service.cues.view_frame.upright_angle`); a level camera's crop is the
+        (:func:`tracker_service.cues.level_frame.upright_angle`); a level camera's crop is the
         plain one.
-    box : (x0, x1, y0, y1), optional
-        :func:`silhouette_box` of ``mask``, when the caller has it.
 
     Returns
     -------
@@ -261,10 +227,11 @@ def person_crop(frame: NDArray[np.uint8], mask: NDArray[np.bool_], size: int, ca
     crop_mask : (size, size) bool
     None when the mask is empty.
     """
-    box = silhouette_box(mask) if box is None else box
-    if box is None:
+    rows = np.flatnonzero(mask.any(axis=1))
+    if not len(rows):
         return None
-    x0, x1, y0, y1 = box
+    cols = np.flatnonzero(mask.any(axis=0))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     angle = 0.0 if camera is None else upright_angle(camera, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
     if angle == 0.0:
         side = CROP_MARGIN * max(y1 - y0, x1 - x0)
@@ -376,11 +343,10 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         An ensemble (``net.members``) reads every view with every network and pools all readings
         the same way (:func:`pool_readings`).
     camera : Camera, optional
-        The camera of ``frame``. The network reads the body in the view frame (the world's up, the
-        horizontal line of sight): the reading is turned into the camera's axes
-        (:func:`tracker_service.cues.view_frame.view_to_camera`, at :func:`silhouette_median`)
-        and, for a tilted or rolled camera, the crop turned upright (:func:`person_crop`). None:
-        the reading as the network gives it.
+        The camera of ``frame``. The network reads the body in a level camera's axes: for a tilted
+        or rolled camera the crop is turned upright (:func:`person_crop`) and the reading turned
+        into the camera's axes (:func:`tracker_service.cues.level_frame.level_to_camera`); None,
+        or a level camera: the reading as it is.
 
     Returns
     -------
@@ -389,9 +355,8 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         The network's variance of each coordinate.
     None when the mask is empty or the network's output is not finite.
     """
-    box = silhouette_box(mask)
-    c = None if box is None else person_crop(frame, mask, net.size, camera, box)
-    if c is None or box is None:
+    c = person_crop(frame, mask, net.size, camera)
+    if c is None:
         return None
     x = net_input(*c)
     views = np.stack([x, x[:, ::-1]]) if mirror else x[None]  # one batch: both views
@@ -402,9 +367,8 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         if mirror and (flipped := _read(out[1])) is not None:
             readings.append((flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]))
     pooled = pool_readings(readings)
-    if pooled is None or camera is None:
-        return pooled
-    return rotate_reading(*pooled, view_to_camera(camera, *silhouette_median(mask, box)))
+    rotation = None if camera is None else level_to_camera(camera)
+    return pooled if pooled is None or rotation is None else rotate_reading(*pooled, rotation)
 
 
 def pool_readings(readings: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]] | None]

@@ -44,7 +44,7 @@ def test_the_shipped_network_is_not_used_on_a_camera_placement_it_reads_badly() 
 
     assert appearance_unfit(default_camera()) is None
     assert appearance_unfit(placed_camera(distance_m=4.5, hfov_deg=50.0)) is None  # distance and lens are free
-    # the reading is turned into a tilted camera's axes (cues/view_frame.py): within the measured range
+    # the reading is turned into a tilted camera's axes (cues/level_frame.py): within the measured range
     assert appearance_unfit(placed_camera(height_m=1.8, tilt_deg=15.0)) is None
     assert appearance_unfit(placed_camera(height_m=0.6, tilt_deg=-10.0)) is None
     assert appearance_unfit(placed_camera(height_m=1.8, tilt_deg=20.0, hfov_deg=80.0, distance_m=2.5)) is None

@@ -1,5 +1,5 @@
-"""The appearance network's reading turned from the view frame into a camera's axes, its crop
-turned upright (:mod:`tracker_service.cues.view_frame`), and their wiring into ``predict_joints``."""
+"""The appearance network's reading turned from a level camera's axes into a tilted or rolled
+camera's (:mod:`tracker_service.cues.level_frame`), and its wiring into the pipeline."""
 
 from __future__ import annotations
 
@@ -8,13 +8,8 @@ from conftest import constant_reading_net
 
 from protocol.skeleton import N_JOINTS
 from tracker_service.camera import Camera, default_camera, look_at, placed_camera
-from tracker_service.cues.appearance import camera_joints, predict_joints, silhouette_median
-from tracker_service.cues.view_frame import level_to_camera, rotate_reading, view_to_camera
-
-
-def _ry(deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    return np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+from tracker_service.cues.appearance import camera_joints, predict_joints
+from tracker_service.cues.level_frame import level_to_camera, rotate_reading
 
 
 def _rx(deg: float) -> np.ndarray:
@@ -36,7 +31,7 @@ def test_a_tilted_camera_turns_the_reading_about_its_x_axis_by_the_tilt() -> Non
         assert np.allclose(m, _rx(tilt), atol=1e-12)
 
 
-def test_the_view_frame_is_the_cameras_heading_with_the_worlds_up() -> None:
+def test_the_level_frame_is_the_cameras_heading_with_the_worlds_up() -> None:
     """For any camera pose, up in the level frame is the world's up seen from the camera, and the
     level frame's z axis is horizontal: a body upright in the world reads upright in the level frame
     whatever the camera's tilt and roll, and the camera's joints are the level reading turned by M."""
@@ -74,41 +69,22 @@ def test_rotate_reading_keeps_distances_and_total_variance(rng: np.random.Genera
     assert np.array_equal(same_mu, mu) and np.array_equal(same_var, var)
 
 
-def test_the_view_frame_looks_along_the_line_of_sight() -> None:
-    """``view_to_camera``: the level frame turned about the vertical by minus the azimuth of the
-    person's pixel (positive to the right); at the image's centre the level frame itself."""
-    cam = default_camera()
-    assert np.allclose(view_to_camera(cam, cam.cx, 40.0), np.eye(3), atol=1e-15)
-    u = cam.cx + cam.fx * np.tan(np.radians(15.0))
-    assert np.allclose(view_to_camera(cam, u, cam.cy), _ry(-15.0), atol=1e-12)
-    assert np.allclose(view_to_camera(cam, 2 * cam.cx - u, 200.0), _ry(15.0), atol=1e-12)
-    tilted = placed_camera(height_m=1.8, tilt_deg=15.0)
-    assert np.allclose(view_to_camera(tilted, tilted.cx, 10.0), _rx(15.0), atol=1e-12)
-    m = view_to_camera(tilted, 300.0, 100.0)
-    assert np.allclose(m.T @ m, np.eye(3), atol=1e-12)
-    # the line of sight: the pixel's ray lies in the view frame's y-z plane, pointing to -z
-    d = m.T @ np.array([(300.0 - tilted.cx) / tilted.fx, -(100.0 - tilted.cy) / tilted.fy, -1.0])
-    assert abs(d[0]) < 1e-12 and d[2] < 0
-
-
 def test_predict_joints_turns_its_pooled_reading(rng: np.random.Generator) -> None:
-    """With a ``camera``: the pooled reading (mirrored views included) turned from the view frame
-    into the camera's axes at the silhouette's median pixel; without one, the reading as it is."""
+    """With a tilted ``camera``: the pooled reading (mirrored views included) turned into the
+    camera's axes; with a level one, or none, the reading as it is."""
     mu = rng.normal(0.0, 0.2, (N_JOINTS, 3))
     net = constant_reading_net(mu, log_var=-6.0)
     frame = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
     mask = np.zeros((240, 320), bool)
-    mask[60:200, 220:260] = True
-    mask[70:75, 260:300] = True  # an arm held out: the box's centre moves, the median does not
-    read = predict_joints(net, frame, mask, mirror=True)
-    assert read is not None
-    assert silhouette_median(mask, (220, 300, 60, 200)) == (240.0, 127.0)  # the lower median (5,800 pixels)
-    for cam in (placed_camera(height_m=0.8, tilt_deg=-10.0), default_camera()):
-        turned = predict_joints(net, frame, mask, mirror=True, camera=cam)
-        assert turned is not None
-        want = rotate_reading(*read, view_to_camera(cam, 240.0, 127.0))
-        assert np.allclose(turned[0], want[0], atol=1e-9) and np.allclose(turned[1], want[1], atol=1e-12)
-        assert not np.allclose(turned[0], read[0], atol=1e-3)
+    mask[60:200, 140:180] = True
+    cam = placed_camera(height_m=0.8, tilt_deg=-10.0)
+    level = predict_joints(net, frame, mask, mirror=True)
+    turned = predict_joints(net, frame, mask, mirror=True, camera=cam)
+    same = predict_joints(net, frame, mask, mirror=True, camera=default_camera())
+    assert level is not None and turned is not None and same is not None
+    want = rotate_reading(*level, _rx(-10.0))
+    assert np.allclose(turned[0], want[0], atol=1e-9) and np.allclose(turned[1], want[1], atol=1e-12)
+    assert np.array_equal(same[0], level[0]) and np.array_equal(same[1], level[1])
 
 
 def _pole_mask(camera: Camera, x: float) -> np.ndarray:

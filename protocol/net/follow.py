@@ -95,7 +95,9 @@ def follow_step(session: Any, live_sub: Any, follower: TrackerFollower, asked_at
     history arrives as the connection forms and can bring the trackers already running one at a
     time, so a client would follow whichever came first over the wire rather than the first by
     id. Whenever samples arrive (or at most every ``ask_every_s`` seconds) the network is asked
-    (a liveliness ``get``, which waits for every answer) and its answers join the same batch.
+    (a liveliness ``get``, which waits for every answer) and its answers join the same batch; when
+    it answers nothing in time, the samples wait for the next answer (the tokens they announce
+    are in it).
 
     Returns
     -------
@@ -111,6 +113,11 @@ def follow_step(session: Any, live_sub: Any, follower: TrackerFollower, asked_at
         batch.append((str(tok.key_expr), tok.kind == zenoh.SampleKind.PUT))
     if follower.current is None and (batch or now - asked_at >= ask_every_s):
         asked_at = now
-        batch += [(k, True) for k in alive_keys(session)]
+        answers = alive_keys(session)
+        if not answers:
+            # no answer in time (a loaded machine, a slow router): the history alone may hold the
+            # trackers one at a time, so wait for the next answer, which holds every token alive
+            return False, asked_at
+        batch += [(k, True) for k in answers]
     changed = follower.on_tokens(batch) if batch else False
     return changed, asked_at

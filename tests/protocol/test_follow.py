@@ -82,3 +82,17 @@ def test_a_client_with_nobody_to_follow_asks_the_network_at_most_every_second() 
         changed, asked = follow_step(net, net, f, asked, now=now)
         assert not changed
     assert net.gets == 2 and asked == 1.2
+
+
+def test_history_alone_never_chooses_while_the_network_does_not_answer() -> None:
+    """A get that answers nothing in time (a loaded machine): the subscriber's history, which
+    brought 'second' alone, does not choose; the next answer holds both and 'first' is followed."""
+    net = _Network(alive=[], arriving=[[("second", True)], [("first", True)], []])
+    f, asked = TrackerFollower(), -1e9
+    net.poll()
+    changed, asked = follow_step(net, net, f, asked, now=0.0)
+    assert not changed and f.current is None and net.gets == 1
+    net.alive = ["first", "second"]
+    net.poll()
+    changed, asked = follow_step(net, net, f, asked, now=0.1)
+    assert changed and f.current == "first" and net.gets == 2

@@ -81,14 +81,11 @@ def _run(placement: Placement, takes: list[Any], seed: int, frames: int, out: Pa
     configs = {"cue": tracker_config(base), "silhouettes": tracker_config(replace(base, appearance="off"))}
     for name, cfg in configs.items():
         row[f"{name}_on"] = cfg.appearance is not None
+    opts = EvalOptions(frames=frames, seed=seed, camera=camera)
     for e in tqdm(takes, desc=row["placement"], unit="take", leave=False):
         motion = load_motion(str(mocap_root() / e.path), fps=30.0)
-        got = {}
-        for name, cfg in configs.items():
-            opts = EvalOptions(frames=frames, seed=seed) if camera is None else EvalOptions(
-                frames=frames, seed=seed, camera=camera)
-            got[name] = evaluate_motion(motion, loaded, cfg, opts)["mpjpe_cm"]
-        row["takes"][e.path] = got
+        row["takes"][e.path] = {name: evaluate_motion(motion, loaded, cfg, opts)["mpjpe_cm"]
+                                for name, cfg in configs.items()}
     for name in configs:
         row[f"{name}_mpjpe_cm"] = round(float(np.mean([t[name] for t in row["takes"].values()])), 2)
     return row

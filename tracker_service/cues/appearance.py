@@ -81,7 +81,7 @@ def appearance_unfit(camera: Camera) -> str | None:
     if abs(tilt) > FIT_TILT_DEG:
         return f"the camera is tilted {tilt:+.1f} deg (measured: within {FIT_TILT_DEG:g} deg)"
     if abs(roll) > FIT_ROLL_DEG:
-        return f"the camera is rolled {roll:+.1f} deg (trained: within {FIT_ROLL_DEG:g} deg)"
+        return f"the camera is rolled {roll:+.1f} deg (measured: within {FIT_ROLL_DEG:g} deg)"
     return None
 
 
@@ -355,7 +355,8 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         The network's variance of each coordinate.
     None when the mask is empty or the network's output is not finite.
     """
-    c = person_crop(frame, mask, net.size, camera)
+    rotation = None if camera is None else level_to_camera(camera)  # None: a level camera, nothing to turn
+    c = person_crop(frame, mask, net.size, None if rotation is None else camera)
     if c is None:
         return None
     x = net_input(*c)
@@ -367,7 +368,6 @@ def predict_joints(net: AppearanceNet, frame: NDArray[np.uint8], mask: NDArray[n
         if mirror and (flipped := _read(out[1])) is not None:
             readings.append((flipped[0][idx] * np.array([-1.0, 1.0, 1.0]), flipped[1][idx]))
     pooled = pool_readings(readings)
-    rotation = None if camera is None else level_to_camera(camera)
     return pooled if pooled is None or rotation is None else rotate_reading(*pooled, rotation)
 
 
